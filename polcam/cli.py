@@ -1,0 +1,278 @@
+"""The ``polcam`` command line.  ``polcam COMMAND --help`` documents each command."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from polcam import __version__
+from polcam.errors import CameraUnavailableError, PolcamError
+
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+FORMATS = {"exr": (".exr", None), "tiff": (".tif", "float32"), "tiff16": (".tif", "uint16")}
+
+
+# ---------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------
+
+def _inputs(paths: Iterable[Path], *, recursive: bool) -> list[Path]:
+    """Raw frame files among ``paths`` (folders expanded, sidecars skipped)."""
+    from polcam.io import RAW_EXTENSIONS
+
+    out: list[Path] = []
+    for p in paths:
+        if p.is_dir():
+            it = p.rglob("*") if recursive else p.iterdir()
+            out += sorted(f for f in it if f.is_file() and f.suffix.lower() in RAW_EXTENSIONS)
+        else:
+            out.append(p)
+    return out
+
+
+def _stokes_products(stack: np.ndarray) -> dict[str, np.ndarray]:
+    from polcam import stokes as st
+
+    s = st.stokes(stack)
+    return {
+        "i000": stack[0], "i045": stack[1], "i090": stack[2], "i135": stack[3],
+        "s0": s.s0, "s1": s.s1, "s2": s.s2,
+        "dolp": st.dolp(s), "aolp": st.aolp(s),
+        "residual": st.fit_residual(stack),
+    }
+
+
+# products whose values lie in [0, 1] (the others are signed or larger: kept float for tiff16)
+_UNIT_RANGE = ("i000", "i045", "i090", "i135", "dolp")
+
+
+def _dtype_for(name: str, fmt: str) -> str | None:
+    if fmt == "tiff16":
+        return "uint16" if name in _UNIT_RANGE else "float32"
+    return FORMATS[fmt][1]
+
+
+def _run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, method: str,
+                resolution: str, fmt: str, quiet: bool = False) -> dict[str, Any]:
+    from polcam.demosaic import demosaic
+    from polcam.io import read_frame, write_image
+    from polcam.io.atomic import atomic_write
+
+    ext = FORMATS[fmt][0]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done: list[dict[str, Any]] = []
+    failed: list[dict[str, str]] = []
+    for path in files:
+        t0 = time.perf_counter()
+        try:
+            frame = read_frame(path, layout=layout)
+            stack = demosaic(frame, method=method, resolution=resolution)
+            target = out_dir / path.stem
+            target.mkdir(parents=True, exist_ok=True)
+            products = _stokes_products(stack)
+            meta = {"input": str(path), "layout": str(frame.layout), "demosaic": method,
+                    "resolution": resolution, "polcam_version": __version__,
+                    "bit_depth": frame.bit_depth, "black_level": frame.black_level,
+                    "white_level": frame.white_level}
+            for name, arr in products.items():
+                write_image(target / f"{name}{ext}", arr, metadata={**meta, "product": name},
+                            dtype=_dtype_for(name, fmt))
+            seconds = time.perf_counter() - t0
+            meta["seconds"] = seconds
+            meta["shape"] = list(stack.shape)
+            with atomic_write(target / "meta.json", "w") as fh:
+                json.dump(meta, fh, indent=2)
+            done.append(meta)
+            if not quiet:
+                d = products["dolp"]
+                print(f"{path.name}: {frame.layout} {stack.shape} -> {target}  "
+                      f"mean DoLP {float(np.mean(d)):.3f}  {seconds:.2f} s")
+        except (PolcamError, OSError) as exc:
+            failed.append({"input": str(path), "error": str(exc)})
+            print(f"error: {exc}", file=sys.stderr)
+    summary = {"done": len(done), "failed": failed, "frames": done}
+    with atomic_write(out_dir / "summary.json", "w") as fh:
+        json.dump(summary, fh, indent=2)
+    return summary
+
+
+# ---------------------------------------------------------------------------
+# commands
+# ---------------------------------------------------------------------------
+
+def cmd_stokes(args: argparse.Namespace) -> int:
+    files = _inputs(args.inputs, recursive=args.recursive)
+    if not files:
+        print(f"error: no raw frames found in {', '.join(map(str, args.inputs))}", file=sys.stderr)
+        return 2
+    summary = _run_stokes(files, args.out, layout=args.layout, method=args.demosaic,
+                          resolution=args.resolution, fmt=args.format, quiet=args.quiet)
+    print(f"{summary['done']} frame(s) written to {args.out}, {len(summary['failed'])} failed")
+    return 1 if summary["failed"] else 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from polcam.demosaic import DEMOSAIC_METHODS
+
+    src = args.input or FIXTURES / "raw"
+    if not src.is_dir():
+        print(f"error: fixture folder {src} not found (give --input DIR)", file=sys.stderr)
+        return 2
+    method = args.demosaic or DEMOSAIC_METHODS[-1]
+    print(f"polcam {__version__} demo: raw frames in {src} -> {args.out}")
+    print(f"demosaic: {method}")
+    summary = _run_stokes(_inputs([src], recursive=False), args.out, layout=None, method=method,
+                          resolution="full", fmt="exr")
+    print(f"demo done: {summary['done']} frame(s) in {args.out.resolve()} "
+          f"(per frame: i000..i135, s0, s1, s2, dolp, aolp, residual as EXR, meta.json), "
+          f"{len(summary['failed'])} failed")
+    return 1 if summary["failed"] else 0
+
+
+def cmd_devices(args: argparse.Namespace) -> int:
+    from polcam.camera import list_devices
+
+    devices = list_devices(fake=args.fake)
+    if args.json:
+        print(json.dumps([d.as_dict() for d in devices], indent=2))
+        return 0
+    if not devices:
+        print("no camera found (check cabling/network; see drivers/README.md; "
+              "`polcam devices --fake` shows Aravis' simulated camera)")
+        return 0
+    print(f"{'id':<32} {'vendor':<24} {'model':<24} {'serial':<14} {'protocol':<10} address")
+    for d in devices:
+        print(f"{d.id:<32} {d.vendor:<24} {d.model:<24} {d.serial:<14} {d.protocol:<10} {d.address}")
+    return 0
+
+
+def cmd_formats(args: argparse.Namespace) -> int:
+    from polcam.mosaic import LAYOUTS, PIXEL_FORMATS, _vendor_key
+
+    key = _vendor_key(args.vendor)
+    print("layouts: " + ", ".join(f"{k} = {v}" for k, v in LAYOUTS.items()))
+    print(f"{'vendor':<32} {'pixel format':<44} {'bits':>4} {'packing':<9} {'kind':<12} layout")
+    for (vendor, name), f in sorted(PIXEL_FORMATS.items()):
+        if key is not None and vendor not in ("*", key):
+            continue
+        print(f"{vendor:<32} {name:<44} {f.bit_depth:>4} {f.packing:<9} {f.kind:<12} {f.layout or ''}")
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    if args.bench == "demosaic":
+        from polcam.bench import demosaic as bench
+
+        rows = bench.run(data_dir=args.data, size=args.size, seed=args.seed)
+        print(bench.format_markdown(rows))
+        return 0
+    if args.bench == "sihr":
+        from polcam.bench import sihr
+
+        if args.data is None or not args.data.is_dir():
+            print("error: --data DIR (the shen2013 images and their *_gt.png) is required", file=sys.stderr)
+            return 2
+        rows = sihr.run(args.data, methods=args.methods)
+        print(sihr.format_table(rows))
+        return 0
+    raise AssertionError(args.bench)
+
+
+# ---------------------------------------------------------------------------
+# parser
+# ---------------------------------------------------------------------------
+
+def build_parser() -> argparse.ArgumentParser:
+    from polcam.demosaic import DEMOSAIC_METHODS
+
+    p = argparse.ArgumentParser(
+        prog="polcam",
+        description="Polarization cameras: raw frames to polarization stacks, Stokes maps and "
+                    "diffuse/specular layers.",
+    )
+    p.add_argument("--version", action="version", version=f"polcam {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    s = sub.add_parser("stokes", help="demosaic raw frames and write the stack, S0-S2, DoLP, AoLP",
+                       description="Read raw polarization mosaics (png/tif/pgm/bmp/raw/npy/dng), "
+                                   "demosaic them and write, per frame, OUT/<stem>/ with i000..i135 "
+                                   "(the four angle images), s0, s1, s2, dolp (0..1), aolp (radians in "
+                                   "[0, pi) from the image x axis), residual ((I0+I90)-(I45+I135)) and "
+                                   "meta.json; OUT/summary.json lists done and failed frames.")
+    s.add_argument("inputs", nargs="+", type=Path, help="raw frame files or folders")
+    s.add_argument("-o", "--out", type=Path, required=True, help="output folder")
+    s.add_argument("--layout", help="sensor layout (imx250mzr, imx250myr, mono:A,B,C,D, "
+                                    "color:A,B,C,D:BAYER); default: from the sidecar / pixel format")
+    s.add_argument("--demosaic", default="bilinear", choices=DEMOSAIC_METHODS,
+                   help="demosaicing method (default: bilinear)")
+    s.add_argument("--resolution", default="full", choices=("full", "cell"),
+                   help="full: one output pixel per sensor pixel; cell: one per 2x2 polarizer cell")
+    s.add_argument("--format", default="exr", choices=tuple(FORMATS),
+                   help="exr (float32), tiff (float32) or tiff16 (uint16 scaled from [0, 1]; "
+                        "signed maps stay float32)")
+    s.add_argument("--recursive", action="store_true", help="descend into sub-folders")
+    s.add_argument("--quiet", action="store_true", help="print only the final line and errors")
+    s.set_defaults(func=cmd_stokes)
+
+    d = sub.add_parser("demo", help="run the main job on the bundled fixtures",
+                       description="Run polcam on the raw frames bundled in fixtures/raw and write "
+                                   "the results to --out.")
+    d.add_argument("--out", type=Path, default=Path("demo-output"), help="output folder (default demo-output)")
+    d.add_argument("--input", type=Path, help="folder of raw frames (default: the bundled fixtures)")
+    d.add_argument("--demosaic", choices=DEMOSAIC_METHODS, help="demosaicing method (default: the best one)")
+    d.set_defaults(func=cmd_demo)
+
+    v = sub.add_parser("devices", help="list the cameras Aravis sees",
+                       description="List GenICam cameras (GigE Vision, USB3 Vision) through Aravis: "
+                                   "id, vendor, model, serial, protocol, address.")
+    v.add_argument("--fake", action="store_true", help="also show Aravis' simulated camera Fake_1")
+    v.add_argument("--json", action="store_true", help="print JSON")
+    v.set_defaults(func=cmd_devices)
+
+    f = sub.add_parser("formats", help="list sensor layouts and supported pixel formats",
+                       description="List the named layouts and every pixel format polcam reads, "
+                                   "by vendor (formats are identified by name plus vendor).")
+    f.add_argument("--vendor", help="only this vendor's formats (plus the GenICam standard ones)")
+    f.set_defaults(func=cmd_formats)
+
+    b = sub.add_parser("bench", help="benchmarks (demosaic, sihr)",
+                       description="demosaic: demosaicing quality (PSNR of I, S0, DoLP; AoLP error) and "
+                                   "speed against ground truth, beside polanalyser. sihr: the single-image "
+                                   "highlight-removal methods on the Shen 2013 images against the published "
+                                   "PSNR/SSIM table.")
+    b.add_argument("bench", choices=("demosaic", "sihr"))
+    b.add_argument("--data", type=Path, help="data folder (demosaic: a real colour stack 0_1.png..135_1.png; "
+                                             "sihr: the shen2013 folder)")
+    b.add_argument("--size", type=int, help="demosaic: size of the synthetic scenes")
+    b.add_argument("--seed", type=int, default=0, help="random seed of the synthetic scenes")
+    b.add_argument("--methods", nargs="+", help="sihr: only these methods")
+    b.set_defaults(func=cmd_bench)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``polcam`` and ``python -m polcam``."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except CameraUnavailableError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 3
+    except PolcamError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

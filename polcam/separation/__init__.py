@@ -1,0 +1,22 @@
+"""Diffuse/specular separation: one module per method, behind :func:`separate`.
+
+Every module in this package whose name does not start with an underscore is
+a method module; importing the package imports them all, and each registers
+itself with :func:`polcam.separation._registry.register`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+
+from polcam.separation._registry import Separation, method_spec, methods, register, separate
+
+for _mod in pkgutil.iter_modules(__path__):
+    if not _mod.name.startswith("_"):
+        importlib.import_module(f"{__name__}.{_mod.name}")
+
+#: Registered separation method names.
+METHODS: tuple[str, ...] = methods()
+
+__all__ = ["METHODS", "Separation", "method_spec", "methods", "register", "separate"]

@@ -1,0 +1,184 @@
+"""The registry of separation methods and the ``separate`` dispatcher."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from polcam.errors import MethodError
+
+__all__ = ["Separation", "MethodSpec", "register", "separate", "methods", "method_spec"]
+
+
+@dataclass
+class Separation:
+    """Result of :func:`separate`.
+
+    Attributes
+    ----------
+    diffuse, specular
+        float32, (H, W, 3) for colour input, (H, W) for mono; ``diffuse +
+        specular`` equals the input mean (over the four angles for a stack)
+        and ``0 <= diffuse <= that mean``.
+    info
+        At least ``method`` and ``seconds``; iterative methods add
+        ``iterations`` and ``converged``.
+    """
+
+    diffuse: np.ndarray
+    specular: np.ndarray
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """How a method is called.
+
+    Attributes
+    ----------
+    name
+        Registry name.
+    fn
+        ``single`` methods: ``fn(image (H, W, 3) float64 in [0, 1], **options)``;
+        ``stack`` methods: ``fn(stack (4, H, W[, 3]) float64, **options)``.
+        Either returns the diffuse layer (same shape as ``image`` / one angle
+        image) or a tuple ``(diffuse, info_dict)``.
+    kind
+        ``"single"`` (one RGB image; applied to the mean of a stack) or
+        ``"stack"`` (needs the four polarization angles).
+    mono
+        True if the method also accepts monochrome input.
+    reference
+        Citation of the method's paper.
+    """
+
+    name: str
+    fn: Callable[..., Any]
+    kind: str
+    mono: bool = False
+    reference: str = ""
+
+
+_METHODS: dict[str, MethodSpec] = {}
+
+# The order polcam.METHODS lists methods in (registered methods not listed here follow).
+_ORDER = ("tensor", "tensor-tau", "tensor-plain", "imin", "wen21", "tan05", "yoon06",
+          "shen08", "shen09", "yang10", "shen13", "akashi16", "yamamoto19")
+
+
+def register(name: str, *, kind: str, mono: bool = False,
+             reference: str = "") -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Decorator registering a separation function under ``name``."""
+    if kind not in ("single", "stack"):
+        raise ValueError(f"method kind {kind!r}: expected 'single' or 'stack'")
+
+    def deco(fn: Callable[..., Any]) -> Callable[..., Any]:
+        _METHODS[name] = MethodSpec(name, fn, kind, mono, reference)
+        return fn
+
+    return deco
+
+
+def methods() -> tuple[str, ...]:
+    """Registered method names, in polcam's canonical order."""
+    known = [m for m in _ORDER if m in _METHODS]
+    return tuple(known + sorted(m for m in _METHODS if m not in _ORDER))
+
+
+def method_spec(name: str) -> MethodSpec:
+    """The :class:`MethodSpec` of ``name``; :class:`MethodError` if unknown."""
+    try:
+        return _METHODS[name]
+    except KeyError:
+        raise MethodError(
+            f"separation method {name!r} is unknown; expected one of {', '.join(methods())}"
+        ) from None
+
+
+def _as_input(images: Any) -> tuple[np.ndarray, str]:
+    arr = np.asarray(images)
+    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise MethodError(f"input of dtype {arr.dtype}: expected floats in [0, 1]")
+    if np.issubdtype(arr.dtype, np.integer):
+        raise MethodError(
+            f"input of integer dtype {arr.dtype}: expected linear floats in [0, 1] "
+            "(normalise raw counts by the white level first)"
+        )
+    if arr.ndim == 4 and arr.shape[0] == 4 and arr.shape[-1] == 3:
+        form = "stack"
+    elif arr.ndim == 3 and arr.shape[0] == 4 and arr.shape[-1] != 3:
+        form = "mono-stack"
+    elif arr.ndim == 3 and arr.shape[-1] == 3:
+        form = "image"
+    else:
+        raise MethodError(
+            f"input of shape {arr.shape}: expected a (4, H, W, 3) colour polarization stack, "
+            "a (4, H, W) mono stack or an (H, W, 3) RGB image"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise MethodError("input contains NaN or infinite values: expected finite floats in [0, 1]")
+    if arr.size and (arr.min() < -1e-6 or arr.max() > 1 + 1e-6):
+        raise MethodError(
+            f"input values span [{arr.min():.4g}, {arr.max():.4g}]: expected [0, 1]"
+        )
+    return np.clip(arr.astype(np.float64), 0.0, 1.0), form
+
+
+def separate(images: Any, *, method: str = "tensor", **options: Any) -> Separation:
+    """Separate diffuse and specular reflection.
+
+    Parameters
+    ----------
+    images
+        (4, H, W, 3) polarization stack (angles 0, 45, 90, 135; RGB; linear
+        float in [0, 1]); (4, H, W) mono stack (methods that accept mono);
+        or (H, W, 3) RGB image (single-image methods only).
+    method
+        A name from :data:`polcam.METHODS`.
+    **options
+        Keyword options of the method (see its module).
+
+    Returns
+    -------
+    Separation
+        ``diffuse`` and ``specular`` float32 of one angle image's shape, with
+        ``diffuse + specular == mean over angles`` (or the image) and
+        ``0 <= diffuse <= mean``.
+
+    Raises
+    ------
+    MethodError
+        Unknown method, or an input the method does not accept.
+    """
+    spec = method_spec(method)
+    arr, form = _as_input(images)
+    if form == "mono-stack" and not spec.mono:
+        raise MethodError(
+            f"method {method!r} needs colour: got a mono stack of shape {arr.shape}; "
+            f"mono stacks are accepted by {', '.join(m for m in methods() if _METHODS[m].mono)}"
+        )
+    if form == "image" and spec.kind == "stack":
+        raise MethodError(
+            f"method {method!r} needs a (4, H, W, 3) polarization stack; got an image of "
+            f"shape {arr.shape}. Single-image methods: "
+            f"{', '.join(m for m in methods() if _METHODS[m].kind == 'single')}"
+        )
+    reference = arr if form == "image" else arr.mean(axis=0)
+    t0 = time.perf_counter()
+    out = spec.fn(reference if spec.kind == "single" else arr, **options)
+    seconds = time.perf_counter() - t0
+    diffuse, info = out if isinstance(out, tuple) else (out, {})
+    diffuse = np.asarray(diffuse, dtype=np.float64)
+    if diffuse.shape != reference.shape:
+        raise RuntimeError(
+            f"method {method!r} returned a diffuse layer of shape {diffuse.shape}, "
+            f"expected {reference.shape}"
+        )
+    diffuse = np.clip(np.nan_to_num(diffuse, nan=0.0, posinf=0.0, neginf=0.0), 0.0, reference)
+    specular = reference - diffuse
+    full_info = {"method": method, "seconds": seconds, **dict(info)}
+    return Separation(diffuse.astype(np.float32), specular.astype(np.float32), full_info)

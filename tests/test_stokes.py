@@ -1,0 +1,101 @@
+"""Stokes parameters and the sinusoid fit against closed forms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from polcam.stokes import (
+    Stokes,
+    aolp,
+    dolp,
+    fit_residual,
+    fit_sinusoid,
+    imax,
+    imin,
+    stokes,
+    synthesize,
+)
+
+
+def _malus(s0, rho, theta):
+    """Ideal polarizer readings of partially polarized light (Malus + unpolarized half)."""
+    t = np.deg2rad(np.array([0.0, 45.0, 90.0, 135.0]))[:, None]
+    return 0.5 * s0 * (1 + rho * np.cos(2 * t - 2 * theta))
+
+
+def test_closed_forms_on_random_partially_polarized_light():
+    rng = np.random.default_rng(1)
+    s0 = rng.uniform(0.1, 2.0, 500)
+    rho = rng.uniform(0, 1, 500)
+    theta = rng.uniform(0, np.pi, 500)
+    i = _malus(s0, rho, theta)
+    s = stokes(i)
+    np.testing.assert_allclose(s.s0, s0, rtol=1e-12)
+    np.testing.assert_allclose(s.s1, s0 * rho * np.cos(2 * theta), atol=1e-12)
+    np.testing.assert_allclose(s.s2, s0 * rho * np.sin(2 * theta), atol=1e-12)
+    np.testing.assert_allclose(dolp(i), rho, atol=1e-12)
+    d = np.abs((aolp(i) - theta + np.pi / 2) % np.pi - np.pi / 2)
+    assert d[rho > 1e-3].max() < 1e-9
+    f = fit_sinusoid(i)
+    np.testing.assert_allclose(f.ic, s0 / 2)
+    np.testing.assert_allclose(f.isv, s0 * rho / 2, atol=1e-12)
+    np.testing.assert_allclose(imin(i), s0 / 2 * (1 - rho), atol=1e-12)
+    np.testing.assert_allclose(imax(i), s0 / 2 * (1 + rho), atol=1e-12)
+    np.testing.assert_allclose(fit_residual(i), 0, atol=1e-12)
+
+
+def test_fit_is_least_squares_for_noisy_samples():
+    # compare against a generic least-squares solve of I = a + b cos 2t + c sin 2t
+    rng = np.random.default_rng(2)
+    i = rng.uniform(0, 1, (4, 50))
+    t = np.deg2rad([0, 45, 90, 135])
+    A = np.stack([np.ones(4), np.cos(2 * t), np.sin(2 * t)], axis=1)
+    coef, *_ = np.linalg.lstsq(A, i, rcond=None)
+    f = fit_sinusoid(i)
+    np.testing.assert_allclose(f.ic, coef[0], atol=1e-12)
+    np.testing.assert_allclose(f.isv, np.hypot(coef[1], coef[2]), atol=1e-12)
+    np.testing.assert_allclose(np.cos(2 * f.phi) * f.isv, coef[1], atol=1e-12)
+    np.testing.assert_allclose(np.sin(2 * f.phi) * f.isv, coef[2], atol=1e-12)
+
+
+def test_aolp_range_and_known_angles():
+    for deg in [0, 30, 45, 90, 135, 179.9]:
+        i = _malus(np.array([1.0]), 1.0, np.deg2rad(deg))
+        a = aolp(i)
+        assert 0 <= a[0] < np.pi
+        assert np.isclose(np.rad2deg(a[0]), deg % 180, atol=1e-9)
+    # tiny negative S2 with positive S1: just below pi wraps into [0, pi)
+    a = aolp(Stokes(np.array([1.0]), np.array([1.0]), np.array([-1e-300])))
+    assert 0 <= a[0] < np.pi
+
+
+def test_dark_and_zero_pixels_are_finite():
+    i = np.zeros((4, 3, 3, 3), dtype=np.float32)
+    with np.errstate(all="raise"):
+        d = dolp(i)
+        a = aolp(i)
+    assert np.all(d == 0) and np.all(np.isfinite(a))
+    assert d.dtype == np.float32 and a.dtype == np.float32
+    # noise can make S0 < sqrt(S1^2+S2^2): DoLP is clipped to 1
+    assert dolp(np.array([[1.0], [0.0], [0.0], [0.0]]))[0] == 1.0
+
+
+def test_synthesize_inverts_the_fit():
+    rng = np.random.default_rng(3)
+    ic = rng.uniform(0.2, 0.6, (8, 8, 3))
+    isv = rng.uniform(0, 0.2, (8, 8, 3))
+    phi = rng.uniform(0, np.pi, (8, 8, 3))
+    stack = synthesize(ic, isv, phi)
+    assert stack.shape == (4, 8, 8, 3)
+    f = fit_sinusoid(stack)
+    np.testing.assert_allclose(f.ic, ic)
+    np.testing.assert_allclose(f.isv, isv, atol=1e-12)
+    np.testing.assert_allclose(synthesize(f.ic, f.isv, f.phi), stack, atol=1e-12)
+
+
+def test_shapes_and_errors():
+    with pytest.raises(ValueError, match="4 angle images"):
+        stokes(np.zeros((3, 4, 4)))
+    s = stokes(np.ones((4, 5, 6), dtype=np.uint8))
+    assert s.s0.dtype == np.float32 and s.s0.shape == (5, 6)
