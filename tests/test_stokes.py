@@ -99,3 +99,57 @@ def test_shapes_and_errors():
         stokes(np.zeros((3, 4, 4)))
     s = stokes(np.ones((4, 5, 6), dtype=np.uint8))
     assert s.s0.dtype == np.float32 and s.s0.shape == (5, 6)
+
+
+def _real(shared_data, name):
+    path = shared_data / "real-imx250mzr" / name
+    if not path.exists():
+        pytest.skip(f"{path} not available")
+    import cv2
+
+    from polcam.demosaic import demosaic
+
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert raw.shape == (2048, 2448)
+    return lambda layout: demosaic(raw, layout=layout, resolution="cell")
+
+
+@pytest.mark.parametrize("name", ["fruits.png", "carps.png"])
+def test_real_frames_fit_the_sinusoid_with_the_true_layout(shared_data, name):
+    """An ideal polarizer cell gives (I0 + I90) - (I45 + I135) = 0; a layout that pairs the
+    wrong pixels does not."""
+    stack_of = _real(shared_data, name)
+
+    def median_residual(layout):
+        st = stack_of(layout)
+        s = stokes(st)
+        lit = (s.s0 > 0.3) & (st.max(axis=0) < 0.95)
+        assert lit.mean() > 0.05
+        return float(np.median(np.abs(fit_residual(st))[lit] / s.s0[lit]))
+
+    rel = median_residual("imx250mzr")
+    assert rel < 0.03
+    for wrong in ("mono:90,0,45,135", "mono:0,45,90,135"):
+        assert median_residual(wrong) > 1.3 * rel
+
+
+def test_real_matte_scene_is_weakly_polarized(shared_data):
+    st = _real(shared_data, "fruits.png")("imx250mzr")
+    s = stokes(st)
+    d = dolp(s)[(s.s0 > 0.3) & (st.max(axis=0) < 0.95)]
+    assert np.median(d) < 0.15            # matte fruit on paper: mostly weakly polarized
+    assert np.percentile(d, 99.9) > 0.2    # with a few polarized glints and edges
+
+
+def test_real_water_reflection_is_polarized_horizontally(shared_data):
+    """Light reflected by a (horizontal) water surface is polarized perpendicular to the plane of
+    incidence: strong DoLP, AoLP concentrated near the image's horizontal."""
+    st = _real(shared_data, "carps.png")("imx250mzr")
+    s = stokes(st)
+    d, a = dolp(s), aolp(s)
+    m = (d > 0.3) & (s.s0 > 0.1)
+    assert m.mean() > 0.5
+    z = np.exp(2j * a[m]).mean()
+    assert abs(z) > 0.8                   # concentrated orientation
+    mean_deg = np.rad2deg(np.angle(z) / 2) % 180
+    assert min(mean_deg, 180 - mean_deg) < 25

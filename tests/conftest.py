@@ -1,0 +1,30 @@
+"""Shared test fixtures.
+
+``shared_data`` is the project's read-only data folder (``../shared/data`` beside the
+repository, or ``$POLCAM_SHARED_DATA``); tests that need it skip cleanly where it is absent.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("POLCAM_SHARED_DATA", REPO.parent / "shared" / "data"))
+FIXTURES = REPO / "fixtures"
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """Path of ../shared/data; skips the test when it is not there."""
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"shared data folder {SHARED_DATA} not available")
+    return SHARED_DATA
+
+
+@pytest.fixture(scope="session")
+def fixtures_dir() -> Path:
+    """Path of the repository's fixtures/ folder."""
+    return FIXTURES

@@ -1,0 +1,71 @@
+"""The separate() dispatcher: names, shapes, the scale contract, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import polcam
+from polcam.errors import MethodError
+from polcam.separation import METHODS, method_spec, separate
+from polcam.separation._registry import _METHODS, register
+
+
+def test_methods_are_exported():
+    assert polcam.METHODS == METHODS
+    assert "imin" in METHODS
+    assert method_spec("imin").kind == "stack"
+
+
+def test_unknown_method_lists_the_known_ones():
+    with pytest.raises(MethodError) as err:
+        separate(np.zeros((4, 4, 4, 3)), method="nope")
+    assert "nope" in str(err.value) and "imin" in str(err.value)
+
+
+@pytest.mark.parametrize("shape", [(4, 4), (3, 4, 4, 3), (4, 4, 4, 2), (2, 4, 4, 3, 1)])
+def test_wrong_shapes_are_refused(shape):
+    with pytest.raises(MethodError, match="expected a \\(4, H, W, 3\\)"):
+        separate(np.zeros(shape), method="imin")
+
+
+def test_bad_values_are_refused():
+    x = np.full((4, 4, 4, 3), 0.5)
+    x[0, 0, 0, 0] = np.nan
+    with pytest.raises(MethodError, match="NaN"):
+        separate(x, method="imin")
+    with pytest.raises(MethodError, match=r"expected \[0, 1\]"):
+        separate(np.full((4, 4, 4, 3), 3.0), method="imin")
+    with pytest.raises(MethodError, match="integer"):
+        separate(np.zeros((4, 4, 4, 3), np.uint8), method="imin")
+
+
+@pytest.fixture
+def toy_methods():
+    # a single-image method that returns out-of-range values, and a stack-only colour method
+    register("_toy_single", kind="single")(lambda img, gain=2.0: (img * gain - 0.1, {"gain": gain}))
+    register("_toy_stack", kind="stack")(lambda st: st.min(axis=0))
+    yield
+    del _METHODS["_toy_single"], _METHODS["_toy_stack"]
+
+
+def test_scale_contract_and_info(toy_methods):
+    rng = np.random.default_rng(0)
+    stack = rng.uniform(0, 1, (4, 6, 5, 3))
+    res = separate(stack, method="_toy_single", gain=3.0)
+    mean = stack.mean(axis=0)
+    assert res.diffuse.shape == (6, 5, 3) and res.diffuse.dtype == np.float32
+    assert np.all(res.diffuse >= 0) and np.all(res.diffuse <= mean + 1e-6)
+    np.testing.assert_allclose(res.diffuse + res.specular, mean, atol=1e-6)
+    assert res.info["method"] == "_toy_single" and res.info["gain"] == 3.0 and res.info["seconds"] >= 0
+    # a single RGB image goes straight to a single-image method
+    img = rng.uniform(0, 1, (6, 5, 3))
+    res = separate(img, method="_toy_single")
+    np.testing.assert_allclose(res.diffuse + res.specular, img, atol=1e-6)
+
+
+def test_kind_checks(toy_methods):
+    with pytest.raises(MethodError, match="needs a \\(4, H, W, 3\\) polarization stack"):
+        separate(np.zeros((5, 5, 3)), method="_toy_stack")
+    with pytest.raises(MethodError, match="needs colour"):
+        separate(np.zeros((4, 5, 5)), method="_toy_stack")
