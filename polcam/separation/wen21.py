@@ -1,0 +1,485 @@
+"""``wen21``: polarization chromaticity clustering + low-rank/sparse decomposition.
+
+After S. Wen, Y. Zheng and F. Lu, "Polarization guided specular reflection
+separation", IEEE Transactions on Image Processing 30, 2021 (:data:`REFERENCE`).
+docs/algorithm-wen21.md gives the equations, every choice the paper leaves
+open, and the measurements behind the defaults.
+
+Outline (stack ``I`` of shape (4, H, W, 3), angles 0, 45, 90, 135 degrees):
+
+1. Fit ``I(t) = Ic + Isv cos(2t - 2 phi)`` per pixel and channel
+   (:func:`polcam.stokes.fit_sinusoid`).
+2. Polarization chromaticity (Wen'21, restated as eq. 3 of Shakeri & Zhang):
+   ``I_rawS = 2 Isv``, ``I_rawD = max(Ic - I_rawS, 0)``,
+   ``I_chro = I_rawD / (sum_RGB I_rawD + mean_p min_RGB Ic)``
+   (:func:`polarization_chromaticity`).
+3. Cluster the pixels by ``I_chro`` with seeded k-means (k-means++ start).
+4. In every cluster, split the (n, 3) matrix ``M`` of the pixels' ``Ic`` into a
+   low-rank diffuse part ``L`` and a sparse specular part ``S`` by robust PCA,
+   solved with the inexact augmented Lagrange multiplier method of Lin, Chen &
+   Ma (2010) (:func:`rpca_ialm`), with three polarization priors:
+
+   * the specular reflection carries all the polarized light and diffuse
+     reflection none, so per channel ``Isv <= S <= Ic`` (hence
+     ``0 <= diffuse <= Ic - Isv``, the polarization minimum);
+   * every specular row is a non-negative multiple of the illuminant colour
+     (dichromatic model), and that colour is read off the polarized light:
+     ``Gamma ~ sum over pixels of Isv`` (diffuse light is unpolarized);
+   * a weak quadratic pull of ``S`` towards Wen's raw specular estimate
+     ``I_rawS = 2 Isv``.
+
+5. The diffuse layer is ``M - S`` of every cluster, on the scale of one
+   polarization image (``Ic`` is the mean over the four angles).
+
+The diffuse layer is never above :func:`polcam.stokes.imin`; the low-rank term
+removes the unpolarized share of the specular light that ``imin`` leaves in.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from polcam.errors import MethodError
+from polcam.separation._registry import register
+from polcam.stokes import fit_sinusoid
+
+__all__ = [
+    "REFERENCE",
+    "RPCAResult",
+    "polarization_chromaticity",
+    "polarization_illuminant",
+    "kmeans",
+    "rpca_ialm",
+    "separate_wen21",
+]
+
+REFERENCE = (
+    "S. Wen, Y. Zheng and F. Lu, Polarization guided specular reflection separation, "
+    "IEEE Transactions on Image Processing 30, 7280-7291, 2021"
+)
+
+# k-means is fitted on at most this many pixels (drawn with the seeded generator),
+# then every pixel goes to its nearest centre.
+_KMEANS_FIT_MAX = 20000
+_KMEANS_MAX_ITER = 100
+
+
+def polarization_chromaticity(ic: np.ndarray, isv: np.ndarray) -> np.ndarray:
+    """Wen'21's polarization chromaticity image.
+
+    ``I_rawD = max(Ic - 2 Isv, 0)`` and
+    ``I_chro = I_rawD / (sum over RGB of I_rawD + mean over pixels of min_RGB Ic)``.
+
+    Parameters
+    ----------
+    ic, isv
+        (..., 3) float: the unpolarized mean ``Ic >= 0`` and the amplitude
+        ``Isv >= 0`` of the polarization sinusoid, per channel.
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3) float64 in [0, 1]; the channels of a pixel sum to less than 1.
+        Zero where the denominator is zero (an all-black image).
+    """
+    ic = np.asarray(ic, dtype=np.float64)
+    isv = np.asarray(isv, dtype=np.float64)
+    if ic.shape != isv.shape or ic.ndim < 1 or ic.shape[-1] != 3:
+        raise MethodError(
+            f"Ic of shape {ic.shape} and Isv of shape {isv.shape}: "
+            "expected two equal (..., 3) arrays"
+        )
+    raw_d = np.maximum(ic - 2.0 * isv, 0.0)
+    imin_bar = float(np.maximum(ic, 0.0).min(axis=-1).mean()) if ic.size else 0.0
+    den = raw_d.sum(axis=-1, keepdims=True) + imin_bar
+    ok = den > 0
+    return np.where(ok, raw_d / np.where(ok, den, 1.0), 0.0)
+
+
+def polarization_illuminant(isv: np.ndarray, *, floor: float = 0.05) -> np.ndarray:
+    """Illuminant colour estimated from the polarized light.
+
+    Diffuse reflection is unpolarized, so the polarized amplitude ``Isv`` of
+    every pixel has the colour of the specular reflection, which is the
+    illuminant colour (neutral interface reflection).  The estimate is the sum
+    of ``Isv`` over all pixels, scaled to a mean of 1.
+
+    Parameters
+    ----------
+    isv
+        (..., 3) float >= 0.
+    floor
+        Each channel is kept at least ``floor`` (relative to the mean) so
+        that bounds divided by it stay finite.
+
+    Returns
+    -------
+    numpy.ndarray
+        (3,) float64 with mean 1; white ``(1, 1, 1)`` when there is no
+        polarized light at all.
+    """
+    total = np.asarray(isv, dtype=np.float64).reshape(-1, 3).sum(axis=0)
+    if not total.sum() > 0:
+        return np.ones(3)
+    g = np.maximum(total / total.mean(), floor)
+    return g / g.mean()
+
+
+def kmeans(x: np.ndarray, k: int, *, rng: np.random.Generator,
+           max_iter: int = _KMEANS_MAX_ITER,
+           fit_max: int = _KMEANS_FIT_MAX) -> tuple[np.ndarray, np.ndarray]:
+    """Seeded k-means (k-means++ start, Lloyd iterations).
+
+    Parameters
+    ----------
+    x
+        (n, d) float features.
+    k
+        Number of clusters requested (>= 1).  Fewer come back when ``x`` has
+        fewer than ``k`` distinct points.
+    rng
+        Generator for the k-means++ draws and the fitting subsample.
+    max_iter
+        Lloyd iterations at most.
+    fit_max
+        Centres are fitted on at most this many points drawn from ``x``.
+
+    Returns
+    -------
+    labels : numpy.ndarray
+        (n,) int64 in [0, number of centres): the nearest centre of every point.
+    centers : numpy.ndarray
+        (number of centres, d) float64; every centre has points.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    n = x.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, x.shape[1]))
+    fit = x if n <= fit_max else x[np.sort(rng.choice(n, fit_max, replace=False))]
+    m = fit.shape[0]
+    chosen = [int(rng.integers(m))]
+    d2 = ((fit - fit[chosen[0]]) ** 2).sum(axis=1)
+    while len(chosen) < k:
+        total = d2.sum()
+        if not total > 0:  # fewer distinct points than k
+            break
+        j = int(rng.choice(m, p=d2 / total))
+        chosen.append(j)
+        d2 = np.minimum(d2, ((fit - fit[j]) ** 2).sum(axis=1))
+    centers = fit[chosen].copy()
+
+    def nearest(pts: np.ndarray, c: np.ndarray) -> np.ndarray:
+        # |p - c|^2 = |p|^2 - 2 p.c + |c|^2; |p|^2 does not change the argmin.
+        # (k, n) scores from the transposed, contiguous points: the fast layout.
+        pts_t = np.ascontiguousarray(pts.T)
+        return np.argmin((c * c).sum(axis=1)[:, None] - 2.0 * (c @ pts_t), axis=0)
+
+    for _ in range(max_iter):
+        labels = nearest(fit, centers)
+        counts = np.bincount(labels, minlength=len(centers))
+        sums = np.stack([np.bincount(labels, weights=fit[:, j], minlength=len(centers))
+                         for j in range(fit.shape[1])], axis=1)
+        new = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], centers)
+        moved = np.abs(new - centers).max()
+        centers = new
+        if moved <= 1e-12:
+            break
+    labels = nearest(x, centers)
+    used = np.unique(labels)  # drop centres no point is nearest to, relabel 0..
+    remap = np.zeros(len(centers), dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return remap[labels], centers[used]
+
+
+def _svt(x: np.ndarray, tau: float) -> np.ndarray:
+    """Singular value thresholding ``U max(s - tau, 0) V^T`` of a 2-D matrix.
+
+    Through the eigen-decomposition of the small Gram matrix: for the 3-column
+    pixel matrices here that costs O(9 n) instead of a full SVD.  Fastest for
+    a C-contiguous wide matrix (rows <= columns), the layout rpca_ialm uses.
+    """
+    wide = x.shape[0] <= x.shape[1]
+    w, v = np.linalg.eigh(x @ x.T if wide else x.T @ x)
+    s = np.sqrt(np.maximum(w, 0.0))
+    keep = s > tau
+    f = np.zeros_like(s)
+    f[keep] = (s[keep] - tau) / s[keep]
+    proj = (v * f) @ v.T
+    return proj @ x if wide else x @ proj
+
+
+class RPCAResult(NamedTuple):
+    """Result of :func:`rpca_ialm`: ``m ~ low_rank + sparse``."""
+
+    low_rank: np.ndarray
+    sparse: np.ndarray
+    iterations: int
+    converged: bool
+
+
+def rpca_ialm(m: np.ndarray, *, lam: float | None = None,
+              lower: np.ndarray | None = None, upper: np.ndarray | None = None,
+              direction: np.ndarray | None = None,
+              prior: np.ndarray | None = None, beta: float = 0.0,
+              tol: float = 1e-7, max_iter: int = 500, rho: float = 1.5) -> RPCAResult:
+    """Robust PCA by the inexact augmented Lagrange multiplier method.
+
+    Solves ::
+
+        min_{L,S} ||L||_* + lam ||S||_1 + beta/2 ||S - prior||_F^2
+        s.t. m = L + S,  lower <= S <= upper,  rows of S in {s g : s >= 0}
+
+    (the last constraint only when ``direction`` g is given) by Lin, Chen & Ma,
+    "The augmented Lagrange multiplier method for exact recovery of corrupted
+    low-rank matrices" (2010), Algorithm 5: ``Y0 = m / J(m)`` with
+    ``J(m) = max(||m||_2, ||m||_inf / lam)`` and ``mu0 = 1.25 / ||m||_2`` as there;
+    ``mu <- min(rho mu, 1e7 mu0)`` (polcam's cap); each iteration takes the singular value
+    thresholding step for ``L`` and then the closed-form proximal step for
+    ``S`` (soft thresholding, or its one-dimensional version along ``g``,
+    then the box, which is exact for these separable convex terms).
+    Without bounds, direction and prior this is the plain RPCA of that paper.
+
+    Parameters
+    ----------
+    m
+        (n1, n2) float matrix.
+    lam
+        Weight of the l1 term; default ``1 / sqrt(max(n1, n2))`` (Candes, Li,
+        Ma & Wright 2011).
+    lower, upper
+        (n1, n2) bounds on ``S`` (broadcastable), or None.
+    direction
+        (n2,) positive vector g: every row of ``S`` is ``s g`` with ``s >= 0``;
+        then ``||S||_1 = s sum(g)`` and the bounds apply to ``s g``.
+    prior, beta
+        (n1, n2) target of the quadratic term and its weight (>= 0).
+    tol
+        Stop when ``||m - L - S||_F / ||m||_F < tol``.
+    max_iter
+        Iteration limit.
+    rho
+        Growth factor of the penalty ``mu`` (> 1).
+
+    Returns
+    -------
+    RPCAResult
+        ``low_rank`` and ``sparse`` (n1, n2) float64 (``sparse`` within the
+        bounds), the iteration count and whether ``tol`` was reached.
+    """
+    m = np.asarray(m, dtype=np.float64)
+    if m.ndim != 2:
+        raise MethodError(f"rpca_ialm: matrix of shape {m.shape}: expected 2-D")
+    n1, n2 = m.shape
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise MethodError(f"rpca_ialm: max_iter={max_iter!r}: expected an integer >= 1")
+    if not (np.isfinite(beta) and beta >= 0 and np.isfinite(rho) and rho > 1):
+        raise MethodError(f"rpca_ialm: beta={beta!r}, rho={rho!r}: expected beta >= 0 and rho > 1")
+    if lam is None:
+        lam = 1.0 / np.sqrt(max(n1, n2, 1))
+    peak = float(np.abs(m).max()) if m.size else 0.0
+    if not peak > 0:
+        z = np.zeros_like(m)
+        return RPCAResult(z, z.copy(), 0, True)
+    # The problem is homogeneous: solve it for m / peak (beta scales by peak) so
+    # that tiny (even subnormal) or large inputs cannot overflow mu or 1 / mu.
+    beta = float(beta) * peak
+    g = None
+    if direction is not None:
+        g = np.asarray(direction, dtype=np.float64).reshape(-1)
+        if g.shape != (n2,) or not np.all(g > 0):
+            raise MethodError(f"rpca_ialm: direction {g}: expected {n2} positive values")
+    # Work on a C-contiguous wide matrix (rows <= columns): the products with
+    # the small side are then fast.  Along ``ch`` lie the n2 entries of one row of m.
+    flip = n1 > n2
+    ch = 0 if flip else 1
+
+    def orient(a: Any) -> np.ndarray:
+        b = np.broadcast_to(np.asarray(a, dtype=np.float64) / peak, (n1, n2))
+        return np.ascontiguousarray(b.T if flip else b)
+
+    x = orient(m)
+    norm_f = float(np.linalg.norm(x))
+    lo = None if lower is None else orient(lower)
+    hi = None if upper is None else orient(upper)
+    p = None if prior is None else orient(prior)
+    if g is not None:
+        gg = float(g @ g)
+        gb = g[:, None] if flip else g[None, :]
+        # bounds on the row scale s: s g >= lower, s g <= upper, s >= 0
+        s_hi = (np.full(n1, np.inf) if hi is None else (hi / gb).min(axis=ch))
+        s_hi = np.maximum(s_hi, 0.0)
+        s_lo = np.zeros(n1) if lo is None else np.maximum((lo / gb).max(axis=ch), 0.0)
+        s_lo = np.minimum(s_lo, s_hi)
+    norm2 = float(np.sqrt(max(np.linalg.eigvalsh(x @ x.T)[-1], 0.0)))
+    y = x / max(norm2, float(np.abs(x).max()) / lam)
+    mu = 1.25 / norm2
+    mu_max = mu * 1e7
+    s = np.zeros_like(x)
+    converged = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        inv = 1.0 / mu
+        yi = inv * y
+        low = x - s
+        low += yi
+        low = _svt(low, inv)
+        d = x - low
+        v = d + yi  # S minimises its terms + mu/2 |S - v|^2
+        if beta > 0:  # ... + beta/2 |S - p|^2: the target becomes a weighted mean
+            v *= mu / (mu + beta)
+            if p is not None:
+                v += (beta / (mu + beta)) * p
+        t = lam / (mu + beta)
+        if g is None:
+            s = np.sign(v) * np.maximum(np.abs(v) - t, 0.0)
+            if lo is not None or hi is not None:
+                s = np.clip(s, lo, hi)
+        else:
+            # argmin_s lam s sum(g) + (mu + beta)/2 |s g - v|^2 = (g.v - t sum(g)) / g.g, boxed
+            num = g @ v if flip else v @ g
+            sc = np.clip((num - t * g.sum()) / gg, s_lo, s_hi)
+            s = gb * (sc[None, :] if flip else sc[:, None])
+        r = d
+        r -= s  # the constraint's residual m - L - S
+        y += mu * r
+        mu = min(mu * rho, mu_max)
+        if np.linalg.norm(r) / norm_f < tol:
+            converged = True
+            break
+    if flip:
+        low, s = low.T, s.T
+    return RPCAResult(low * peak, s * peak, it, converged)
+
+
+def _check_options(clusters: Any, seed: Any, lam_scale: Any, beta: Any, illuminant: Any,
+                   tol: Any, max_iter: Any) -> None:
+    if isinstance(clusters, bool) or not isinstance(clusters, (int, np.integer)) or clusters < 1:
+        raise MethodError(f"wen21: clusters={clusters!r}: expected an integer >= 1")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise MethodError(f"wen21: seed={seed!r}: expected an integer >= 0")
+    for name, val in (("lam_scale", lam_scale), ("tol", tol)):
+        if not (isinstance(val, (int, float, np.number)) and np.isfinite(val) and val > 0):
+            raise MethodError(f"wen21: {name}={val!r}: expected a positive number")
+    if not (isinstance(beta, (int, float, np.number)) and np.isfinite(beta) and beta >= 0):
+        raise MethodError(f"wen21: beta={beta!r}: expected a number >= 0")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise MethodError(f"wen21: max_iter={max_iter!r}: expected an integer >= 1")
+    if isinstance(illuminant, str):
+        if illuminant not in ("polarization", "white"):
+            raise MethodError(
+                f"wen21: illuminant={illuminant!r}: expected 'polarization', 'white' "
+                "or three positive numbers (R, G, B)"
+            )
+    else:
+        arr = np.asarray(illuminant, dtype=object)
+        ok = arr.shape == (3,) and all(
+            isinstance(v, (int, float, np.number)) and not isinstance(v, bool)
+            and np.isfinite(v) and v > 0 for v in arr)
+        if not ok:
+            raise MethodError(
+                f"wen21: illuminant={illuminant!r}: expected 'polarization', 'white' "
+                "or three positive numbers (R, G, B)"
+            )
+
+
+@register("wen21", kind="stack", reference=REFERENCE)
+def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
+                   lam_scale: float = 1.0, beta: float = 1.0,
+                   illuminant: str | tuple[float, float, float] = "polarization",
+                   tol: float = 1e-6, max_iter: int = 500) -> tuple[np.ndarray, dict[str, Any]]:
+    """Diffuse layer by polarization-chromaticity clustering and constrained RPCA.
+
+    Parameters
+    ----------
+    stack
+        (4, H, W, 3) float in [0, 1]: angles 0, 45, 90, 135 degrees, RGB, linear.
+    clusters
+        Number of k-means clusters of the polarization chromaticity (fewer when
+        the image has fewer distinct chromaticities).
+    seed
+        Seed of the k-means draws; equal seeds give identical results.
+    lam_scale
+        The l1 weight of a cluster of n pixels is ``lam_scale / sqrt(n)``.
+    beta
+        Weight of the pull towards Wen's raw specular ``2 Isv``: the term is
+        ``beta * lam / (2 mean(Ic)) * ||S - min(2 Isv, Ic)||^2`` (invariant to
+        image size and exposure); 0 turns it off.
+    illuminant
+        Colour of the specular reflection: ``"polarization"`` (estimated from
+        the polarized light, :func:`polarization_illuminant`), ``"white"``, or
+        an (R, G, B) triple of positive numbers.
+    tol, max_iter
+        Stopping rule of each cluster's RPCA (relative residual, iterations).
+
+    Returns
+    -------
+    diffuse : numpy.ndarray
+        (H, W, 3) float64 with ``0 <= diffuse <= Ic - Isv`` (so within
+        ``[0, mean over angles]``).
+    info : dict
+        ``iterations`` (the most any cluster took), ``converged`` (every
+        cluster met ``tol``), ``clusters`` (how many were used) and
+        ``illuminant`` (the colour used, mean 1).
+
+    Raises
+    ------
+    MethodError
+        A stack that is not (4, H, W, 3), or a bad option.
+    """
+    arr = np.asarray(stack)
+    if arr.ndim != 4 or arr.shape[0] != 4 or arr.shape[-1] != 3:
+        raise MethodError(
+            f"wen21: stack of shape {arr.shape}: expected a (4, H, W, 3) colour polarization "
+            "stack (angles 0, 45, 90, 135 degrees)"
+        )
+    _check_options(clusters, seed, lam_scale, beta, illuminant, tol, max_iter)
+    arr = np.clip(np.nan_to_num(arr.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0), 0.0, None)
+    _, h, w, _ = arr.shape
+    fit = fit_sinusoid(arr)
+    ic = np.maximum(fit.ic, 0.0).reshape(-1, 3)
+    isv = np.minimum(fit.isv, fit.ic).clip(0.0).reshape(-1, 3)
+    peak = float(ic.max()) if ic.size else 0.0
+    if not peak > 0:  # all black: no light, no specular
+        info0 = {"iterations": 0, "converged": True, "clusters": 0, "illuminant": [1.0, 1.0, 1.0]}
+        return np.zeros((h, w, 3)), info0
+    # The method is invariant to exposure; work on [0, 1] whatever the input's level.
+    ic = ic / peak
+    isv = isv / peak
+
+    if isinstance(illuminant, str):
+        gamma = polarization_illuminant(isv) if illuminant == "polarization" else np.ones(3)
+    else:
+        gamma = np.asarray(illuminant, dtype=np.float64)
+        gamma = gamma / gamma.mean()
+
+    chro = polarization_chromaticity(ic, isv)
+    labels, _ = kmeans(chro, int(clusters), rng=np.random.default_rng(int(seed)))
+    raw_s = np.minimum(2.0 * isv, ic)
+    scale = float(ic.mean())
+    diffuse = np.zeros_like(ic)
+    iterations = 0
+    converged = True
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(labels.max() + 2 if labels.size else 1))
+    for k in range(len(bounds) - 1):
+        idx = order[bounds[k]:bounds[k + 1]]
+        if idx.size == 0:
+            continue
+        m = ic[idx]
+        lam = float(lam_scale) / np.sqrt(max(idx.size, 3))
+        b = float(beta) * lam / scale
+        res = rpca_ialm(m, lam=lam, lower=isv[idx], upper=m, direction=gamma,
+                        prior=raw_s[idx], beta=b, tol=float(tol), max_iter=int(max_iter))
+        diffuse[idx] = m - res.sparse
+        iterations = max(iterations, res.iterations)
+        converged = converged and res.converged
+    diffuse = np.clip(diffuse, 0.0, np.maximum(ic - isv, 0.0)) * peak
+    info = {
+        "iterations": iterations,
+        "converged": converged,
+        "clusters": int(labels.max() + 1) if labels.size else 0,
+        "illuminant": [float(v) for v in gamma],
+    }
+    return diffuse.reshape(h, w, 3), info
