@@ -166,12 +166,33 @@ def cmd_formats(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_render(args: argparse.Namespace) -> int:
+    from polcam.synth.render import render, write_scene
+    from polcam.synth.scenes import scene, scene_names
+
+    names = args.scenes or list(scene_names())
+    for name in names:
+        r = render(scene(name), size=args.size, seed=args.seed)
+        written = write_scene(r, args.out / name, bit_depth=args.bit_depth)
+        print(f"{name}: {len(written)} files in {args.out / name}")
+    return 0
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.bench == "demosaic":
         from polcam.bench import demosaic as bench
 
         rows = bench.run(data_dir=args.data, size=args.size, seed=args.seed)
         print(bench.format_markdown(rows))
+        return 0
+    if args.bench == "quality":
+        from polcam.bench import quality
+
+        scores, stats = quality.run(scenes=args.scenes, methods=args.methods, size=args.size or 128,
+                                    seed=args.seed)
+        print(quality.format_table(scores))
+        for f in quality.write_outputs(scores, stats, args.out or Path("bench-output") / "quality"):
+            print(f"wrote {f}")
         return 0
     if args.bench == "sihr":
         from polcam.bench import sihr
@@ -242,17 +263,32 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--vendor", help="only this vendor's formats (plus the GenICam standard ones)")
     f.set_defaults(func=cmd_formats)
 
-    b = sub.add_parser("bench", help="benchmarks (demosaic, sihr)",
+    r = sub.add_parser("render", help="render the synthetic scenes with ground truth",
+                       description="Render the paper's synthetic scene set (Bunny1-7, Dragon1-2, "
+                                   "Armadillo; docs/synthetic.md) into OUT_DIR/<scene>/: the four angle "
+                                   "images, ground-truth diffuse and specular, the object mask, and raw "
+                                   "mosaics (imx250mzr, imx250myr) with their sidecars.")
+    r.add_argument("out", type=Path, help="output folder")
+    r.add_argument("--scenes", nargs="+", help="scene names (default: all)")
+    r.add_argument("--size", type=int, default=256, help="image side in pixels (default 256)")
+    r.add_argument("--seed", type=int, default=0, help="noise and texture seed (default 0)")
+    r.add_argument("--bit-depth", type=int, default=12, choices=(8, 12), help="raw mosaic bit depth")
+    r.set_defaults(func=cmd_render)
+
+    b = sub.add_parser("bench", help="benchmarks (demosaic, sihr, quality)",
                        description="demosaic: demosaicing quality (PSNR of I, S0, DoLP; AoLP error) and "
                                    "speed against ground truth, beside polanalyser. sihr: the single-image "
                                    "highlight-removal methods on the Shen 2013 images against the published "
-                                   "PSNR/SSIM table.")
-    b.add_argument("bench", choices=("demosaic", "sihr"))
+                                   "PSNR/SSIM table. quality: every separation method on the synthetic "
+                                   "scenes (PSNR, SSIM, whole image and object mask; CSV, Markdown, plot).")
+    b.add_argument("bench", choices=("demosaic", "sihr", "quality"))
     b.add_argument("--data", type=Path, help="data folder (demosaic: a real colour stack 0_1.png..135_1.png; "
                                              "sihr: the shen2013 folder)")
     b.add_argument("--size", type=int, help="demosaic: size of the synthetic scenes")
     b.add_argument("--seed", type=int, default=0, help="random seed of the synthetic scenes")
-    b.add_argument("--methods", nargs="+", help="sihr: only these methods")
+    b.add_argument("--methods", nargs="+", help="sihr, quality: only these methods")
+    b.add_argument("--scenes", nargs="+", help="quality: only these scenes (default: all)")
+    b.add_argument("--out", type=Path, help="quality: output folder (default bench-output/quality)")
     b.set_defaults(func=cmd_bench)
     return p
 
