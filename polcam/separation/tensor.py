@@ -97,40 +97,53 @@ DEFAULTS: dict[str, Any] = {
 # 1. illuminant
 # ---------------------------------------------------------------------------
 
-def estimate_illuminant(stack: np.ndarray, *, fraction: float = 0.05,
-                        min_signal: float = 1e-3) -> np.ndarray:
+def estimate_illuminant(stack: np.ndarray, *, significance: float = 5.0) -> np.ndarray:
     """Illuminant chromaticity from the polarized light.
 
-    Diffuse reflection is (close to) unpolarized, so the polarized amplitude
-    ``Isv`` of every channel comes from specular reflection, whose colour is
-    the illuminant's (dichromatic model).  Gamma is the normalised sum of
-    ``Isv`` over the ``fraction`` most polarized unsaturated pixels.
+    Diffuse reflection is (close to) unpolarized, so the linear polarization
+    ``v_c = (S1_c, S2_c)`` of every channel comes from specular reflection,
+    whose colour is the illuminant's (dichromatic model): at a pixel,
+    ``v_c = rho S Gamma_c (cos 2 phi, sin 2 phi)``, one direction for R, G and B
+    with lengths in the ratio of Gamma.  The estimate projects each channel's
+    ``v_c`` onto the polarization direction of the pixel's neighbourhood
+    (the channel-summed ``v`` of its 8 neighbours), so that zero-mean noise,
+    independent between pixels, averages out instead of adding a positive bias
+    in the colour of the brightest channel (as a sum of amplitudes ``Isv``
+    would):
+
+        Gamma_c  proportional to  sum_p  v_c(p) . n(p),   n(p) = sum_{q in N8(p)} sum_c v_c(q)
+
+    over unsaturated pixels.  When the total is not ``significance`` times its
+    own noise (estimated from the spread of the per-pixel terms), or a channel
+    comes out non-positive, the estimate is white.
 
     Parameters
     ----------
     stack
         (4, H, W, 3) float in [0, 1].
-    fraction
-        Share of pixels (the most polarized) used.
-    min_signal
-        Below this mean amplitude the estimate falls back to white.
+    significance
+        How many standard deviations of the noise the signal must exceed.
 
     Returns
     -------
     numpy.ndarray
         (3,) chromaticity summing to 1 (white = 1/3 each).
     """
-    fit = fit_sinusoid(stack)
-    isv = fit.isv.reshape(-1, 3)
-    ok = stack.max(axis=(0, 3)).reshape(-1) < 0.98
-    if not np.any(ok):
+    import cv2
+
+    x = np.asarray(stack, dtype=np.float64)
+    v = np.stack([x[0] - x[2], x[1] - x[3]], axis=-1)          # (H, W, 3, 2)
+    vs = v.sum(axis=2)                                          # (H, W, 2)
+    nb = np.stack([cv2.boxFilter(vs[..., i], -1, (3, 3), normalize=False,
+                                 borderType=cv2.BORDER_CONSTANT) for i in range(2)], axis=-1) - vs
+    terms = np.einsum("hwcj,hwj->hwc", v, nb)                   # (H, W, 3)
+    ok = x.max(axis=(0, 3)) < 0.98
+    t = terms[ok]
+    if t.size == 0:
         return np.full(3, 1 / 3)
-    amp = isv.sum(axis=1)
-    amp_ok = np.where(ok, amp, -1.0)
-    n = max(1, int(fraction * np.count_nonzero(ok)))
-    idx = np.argpartition(amp_ok, -n)[-n:]
-    total = isv[idx].sum(axis=0)
-    if total.sum() / n < min_signal:
+    total = t.sum(axis=0)
+    noise = np.sqrt(np.sum(t.sum(axis=1) ** 2))
+    if total.sum() <= significance * noise or np.any(total <= 0):
         return np.full(3, 1 / 3)
     return total / total.sum()
 

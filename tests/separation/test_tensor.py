@@ -173,15 +173,22 @@ def test_tau_follows_the_formula_and_stays_positive():
 
 def test_illuminant_from_the_polarized_light():
     rng = np.random.default_rng(6)
-    h = w = 20
-    diffuse = rng.uniform(0.05, 0.4, (h, w, 3))
+    h = w = 40
+    yy, xx = np.mgrid[0:h, 0:w] / h
+    diffuse = np.where((xx < 0.5)[..., None], [0.5, 0.2, 0.1], [0.1, 0.3, 0.4])   # coloured albedo
     gam = np.array([0.45, 0.35, 0.20])
-    spec = rng.uniform(0, 0.3, (h, w, 1)) * gam * 3 * (rng.random((h, w, 1)) < 0.3)
-    stack = synthesize(diffuse + spec, 0.8 * spec, rng.uniform(0, np.pi, (h, w, 1)) * np.ones(3))
-    np.testing.assert_allclose(estimate_illuminant(stack), gam, atol=1e-6)
-    # no polarized light: white
+    lobe = 0.3 * np.exp(-((xx - 0.5) ** 2 + (yy - 0.5) ** 2) / 0.02)[..., None]
+    spec = lobe * gam * 3
+    phi = ((np.arctan2(yy - 0.5, xx - 0.5) + np.pi / 2) % np.pi)[..., None] * np.ones(3)
+    clean = synthesize(diffuse + spec, 0.6 * spec, phi)
+    np.testing.assert_allclose(estimate_illuminant(clean), gam, atol=1e-6)
+    # noise in the colour of the (reddish) diffuse does not bias the estimate
+    noisy = clean + rng.normal(0, 0.01, clean.shape) * np.sqrt(clean / 0.5)
+    np.testing.assert_allclose(estimate_illuminant(np.clip(noisy, 0, 1)), gam, atol=0.02)
+    # no polarized light, only noise: white
     flat = synthesize(diffuse, np.zeros_like(diffuse), np.zeros_like(diffuse))
-    np.testing.assert_allclose(estimate_illuminant(flat), 1 / 3)
+    flat = flat + rng.normal(0, 0.01, flat.shape)
+    np.testing.assert_allclose(estimate_illuminant(np.clip(flat, 0, 1)), 1 / 3)
 
 
 def _scene(n=16):
