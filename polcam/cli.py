@@ -125,7 +125,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if not src.is_dir():
         print(f"error: fixture folder {src} not found (give --input DIR)", file=sys.stderr)
         return 2
-    method = args.demosaic or DEMOSAIC_METHODS[-1]
+    method = args.demosaic or "eari"
     print(f"polcam {__version__} demo: raw frames in {src} -> {args.out}")
     print(f"demosaic: {method}")
     summary = _run_stokes(_inputs([src], recursive=False), args.out, layout=None, method=method,
