@@ -86,10 +86,16 @@ def test_missing_layout_is_reported(tmp_path, capsys):
 
 
 def test_demo_runs_on_the_bundled_fixtures(tmp_path, capsys):
+    # the tensor method on the colour fixture takes ~10 s: the test uses imin for both frames
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out)]) == 0
-    assert "demo done: 1 frame(s)" in capsys.readouterr().out
-    assert (out / "fruits_crop" / "dolp.exr").is_file()
+    assert main(["demo", "--out", str(out), "--separate", "imin"]) == 0
+    assert "demo done: 2 frame(s)" in capsys.readouterr().out
+    for stem, shape in (("fruits_crop", (256, 320)), ("synthetic_bunny5", (128, 128, 3))):
+        assert (out / stem / "dolp.exr").is_file()
+        d, meta = read_image(out / stem / "diffuse.exr")
+        s, _ = read_image(out / stem / "specular.exr")
+        assert d.shape[:2] == shape[:2] and meta["method"] == "imin" and meta["resolution"] == "cell"
+        assert np.all(d >= 0) and np.all(s >= -1e-6)
 
 
 def test_formats_lists_vendor_formats(capsys):

@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 from scipy.sparse.linalg import svds
+from threadpoolctl import threadpool_limits
 
 from polcam.errors import MethodError
 from polcam.separation._registry import method_spec, register
@@ -554,9 +555,12 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     def project(T: np.ndarray) -> np.ndarray:
         return unfold(phase_project(fold(T, h, w)))
 
-    L, _S, rec = ialm(D, tau=tau, lam=lam, gamma=gamma, project=project if gamma > 0 else None,
-                      rho=opt["rho"], mu0=opt["mu0"], mu_max=opt["mu_max"], tol=opt["tol"],
-                      max_iter=opt["max_iter"], solver=opt["solver"])
+    # one BLAS thread: OpenBLAS' threaded complex SVD of these slice sizes was 12 times
+    # slower than the single-threaded one on the 2-core machine (docs/benchmarks.md)
+    with threadpool_limits(limits=1, user_api="blas"):
+        L, _S, rec = ialm(D, tau=tau, lam=lam, gamma=gamma, project=project if gamma > 0 else None,
+                          rho=opt["rho"], mu0=opt["mu0"], mu_max=opt["mu_max"], tol=opt["tol"],
+                          max_iter=opt["max_iter"], solver=opt["solver"])
     timings["ialm"] = time.perf_counter() - t
 
     # 8. diffuse: representation 1, mean over angles, back to the input's illuminant
