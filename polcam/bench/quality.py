@@ -249,14 +249,21 @@ def _plot(scores: Sequence[Score], stats: dict[str, dict[str, float]], path: Pat
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    scenes = sorted(stats, key=lambda sc: stats[sc]["specular_ratio"])
+    # like the paper's Fig. 3: one object (the Bunny series when present), specular rising
+    bunnies = [sc for sc in stats if sc.startswith("Bunny")]
+    scenes = sorted(bunnies or list(stats), key=lambda sc: stats[sc]["specular_ratio"])
+    methods = list(dict.fromkeys(s.method for s in scores))
+    cmap = plt.get_cmap("tab20")
+    markers = "os^vD<>pP*Xhd"
     fig, ax = plt.subplots(figsize=(8, 4.5), dpi=100)
-    for m in dict.fromkeys(s.method for s in scores):
+    for i, m in enumerate(methods):
         by = {s.scene: s.psnr for s in scores if s.method == m and not s.error}
         xs = [stats[sc]["specular_ratio"] for sc in scenes if sc in by]
         ys = [by[sc] for sc in scenes if sc in by]
-        ax.plot(xs, ys, marker="o", label=m, linewidth=2.5 if m.startswith("tensor") else 1)
-    ax.set_xlabel("specular / diffuse energy of the scene")
+        ax.plot(xs, ys, marker=markers[i % len(markers)], color=cmap(i % 20), label=m,
+                linewidth=2.5 if m.startswith("tensor") else 1)
+    ax.set_xscale("log")
+    ax.set_xlabel("specular / diffuse energy of the scene (" + ", ".join(scenes) + ")")
     ax.set_ylabel("PSNR of the diffuse layer (dB)")
     ax.set_title("Separation quality as the specular reflection increases")
     ax.grid(alpha=0.3)
