@@ -43,6 +43,7 @@ __all__ = [
     "diffuse_from_max_chromaticity",
     "dark_mask",
     "finish_diffuse",
+    "is_finite_number",
 ]
 
 #: Denominators at or below this magnitude count as zero.
@@ -87,6 +88,23 @@ def as_rgb_image(image: Any, *, method: str = "") -> np.ndarray:
     if lo < -1e-6 or hi > 1 + 1e-6:
         raise MethodError(f"{who}image values span [{lo:.4g}, {hi:.4g}]: expected [0, 1]")
     return np.clip(arr.astype(np.float64, copy=False), 0.0, 1.0)
+
+
+def is_finite_number(value: Any) -> bool:
+    """True for a finite real scalar option value (Python or NumPy int or float, not bool).
+
+    Parameters
+    ----------
+    value
+        Any object.
+
+    Returns
+    -------
+    bool
+        False for bools, strings, arrays, None, NaN and infinities.
+    """
+    real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    return bool(real and np.isfinite(value))
 
 
 def channel_max(image: np.ndarray) -> np.ndarray:

@@ -72,7 +72,13 @@ from typing import Any
 import numpy as np
 
 from polcam.errors import MethodError
-from polcam.separation._common import as_rgb_image, channel_max, channel_min, finish_diffuse
+from polcam.separation._common import (
+    as_rgb_image,
+    channel_max,
+    channel_min,
+    finish_diffuse,
+    is_finite_number,
+)
 from polcam.separation._registry import register
 
 REFERENCE = (
@@ -106,11 +112,6 @@ def modified_specular_free(image: np.ndarray, offset: float | None = None) -> np
     i_min = channel_min(image)
     tau = float(i_min.mean()) if offset is None else float(offset)
     return image - i_min[..., None] + tau
-
-
-def _is_number(value: Any) -> bool:
-    real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    return bool(real and np.isfinite(value))
 
 
 def _fit(pixels: np.ndarray, body: np.ndarray, *, refit_negative: bool) -> np.ndarray:
@@ -183,11 +184,11 @@ def separate_shen08(
         Bad image or option values.
     """
     img = as_rgb_image(image, method="shen08")
-    if not (_is_number(chroma_threshold) and 0.0 < chroma_threshold <= 2.0):
+    if not (is_finite_number(chroma_threshold) and 0.0 < chroma_threshold <= 2.0):
         raise MethodError(
             f"method 'shen08': chroma_threshold={chroma_threshold!r}: expected a number in (0, 2]"
         )
-    if not (_is_number(dark_threshold) and 0.0 <= dark_threshold <= 1.0):
+    if not (is_finite_number(dark_threshold) and 0.0 <= dark_threshold <= 1.0):
         raise MethodError(
             f"method 'shen08': dark_threshold={dark_threshold!r}: expected a number in [0, 1]"
         )

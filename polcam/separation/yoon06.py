@@ -73,7 +73,13 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from polcam.errors import MethodError
-from polcam.separation._common import as_rgb_image, channel_min, channel_sum, finish_diffuse
+from polcam.separation._common import (
+    as_rgb_image,
+    channel_min,
+    channel_sum,
+    finish_diffuse,
+    is_finite_number,
+)
 from polcam.separation._registry import register
 
 REFERENCE = (
@@ -88,8 +94,7 @@ DIRECTIONS = ("vertical", "horizontal", "both")
 
 
 def _check_threshold(name: str, value: float) -> None:
-    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-    if not (number and np.isfinite(value) and 0.0 <= value <= 1.0):
+    if not (is_finite_number(value) and 0.0 <= value <= 1.0):
         raise MethodError(f"method 'yoon06': {name}={value!r}: expected a number in [0, 1]")
 
 
