@@ -17,7 +17,7 @@ system:
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev,camera]'
+	$(PY) -m pip install -q -e '.[dev,camera,dask]'
 	@touch $(STAMP)
 
 setup: system $(STAMP)

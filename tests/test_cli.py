@@ -15,7 +15,7 @@ from polcam import __version__
 from polcam.cli import build_parser, main
 from polcam.io import read_image
 
-COMMANDS = ["stokes", "demo", "devices", "formats", "render", "bench"]
+COMMANDS = ["process", "stokes", "demo", "devices", "formats", "render", "bench"]
 
 
 def test_every_command_has_help(capsys):
@@ -116,3 +116,11 @@ def test_devices_fake_json(capsys):
 
 def test_fixture_folder_exists():
     assert (Path(__file__).resolve().parents[1] / "fixtures" / "raw" / "fruits_crop.png").is_file()
+
+
+def test_docs_cli_md_is_up_to_date():
+    """docs/cli.md documents every command and flag: it is the parsers' own help."""
+    from polcam.cli import reference_markdown
+
+    doc = Path(__file__).resolve().parents[1] / "docs" / "cli.md"
+    assert doc.read_text() == reference_markdown(), "regenerate: python -m polcam.cli --markdown > docs/cli.md"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -128,6 +129,24 @@ def _as_input(images: Any) -> tuple[np.ndarray, str]:
     return np.clip(arr.astype(np.float64), 0.0, 1.0), form
 
 
+def _check_options(spec: MethodSpec, options: dict[str, Any]) -> None:
+    """Refuse keyword options the method's function does not take (unless it takes **kwargs)."""
+    try:
+        params = inspect.signature(spec.fn).parameters
+    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
+        return
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    accepted = [n for n, p in list(params.items())[1:]
+                if p.kind in (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        raise MethodError(
+            f"method {spec.name!r} takes no option {', '.join(map(repr, unknown))}; "
+            f"its options: {', '.join(accepted) if accepted else 'none'}"
+        )
+
+
 def separate(images: Any, *, method: str = "tensor", **options: Any) -> Separation:
     """Separate diffuse and specular reflection.
 
@@ -167,6 +186,7 @@ def separate(images: Any, *, method: str = "tensor", **options: Any) -> Separati
             f"shape {arr.shape}. Single-image methods: "
             f"{', '.join(m for m in methods() if _METHODS[m].kind == 'single')}"
         )
+    _check_options(spec, options)
     reference = arr if form == "image" else arr.mean(axis=0)
     t0 = time.perf_counter()
     out = spec.fn(reference if spec.kind == "single" else arr, **options)

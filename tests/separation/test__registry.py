@@ -69,3 +69,10 @@ def test_kind_checks(toy_methods):
         separate(np.zeros((5, 5, 3)), method="_toy_stack")
     with pytest.raises(MethodError, match="needs colour"):
         separate(np.zeros((4, 5, 5)), method="_toy_stack")
+
+
+def test_unknown_options_are_refused_by_name(toy_methods):
+    with pytest.raises(MethodError, match="takes no option 'max_iter'; its options: none"):
+        separate(np.zeros((4, 4, 4, 3)), method="imin", max_iter=5)
+    with pytest.raises(MethodError, match="its options: gain"):
+        separate(np.zeros((4, 4, 3)), method="_toy_single", gian=2.0)
