@@ -247,7 +247,12 @@ def cmd_process(args: argparse.Namespace) -> int:
             sink.close()
     summary = proc.summarize(results, problems, opts=opts, seconds=time.perf_counter() - t0,
                              interrupted=interrupted)
-    path = proc.write_summary(args.out, summary)
+    try:
+        path: Path | str = proc.write_summary(args.out, summary)
+    except PolcamError as exc:  # e.g. the disk filled up: the frames written so far are whole
+        print(f"error: {exc}", file=sys.stderr)
+        path = "(summary.json not written)"
+        summary["failed"].append({"input": str(args.out / "summary.json"), "error": str(exc)})
     line = (f"{summary['done']} done, {summary['skipped']} up to date, {len(summary['failed'])} failed"
             f"{', interrupted' if interrupted else ''} in {summary['seconds']:.1f} s -> {path}")
     if args.json:

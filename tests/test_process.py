@@ -276,3 +276,65 @@ def test_force_redoes_everything(raw_dir, tmp_path):
     assert main(["process", str(raw_dir), "-o", str(out), *opts]) == 0
     assert main(["process", str(raw_dir), "-o", str(out), *opts, "--force"]) == 0
     assert json.loads((out / "summary.json").read_text())["done"] == 3
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 512 KiB tmpfs (needs root and mount; skipped elsewhere)."""
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    if os.geteuid() != 0 or shutil.which("mount") is None:
+        pytest.skip("mounting a tmpfs needs root")
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=512k", "tmpfs", str(mnt)], capture_output=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr.decode().strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def test_full_disk_is_reported_and_finished_frames_survive(fixtures_dir, tmp_path, tiny_disk, capsys):
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    for i in range(40):
+        _small_colour(fixtures_dir, raw, f"f{i:02d}", offset=4 * (i % 8))
+    out = tiny_disk / "out"
+    code = main(["process", str(raw), "-o", str(out), "--quiet", "--workers", "1", "--method", "imin"])
+    assert code == 1
+    summary_path = out / "summary.json"
+    finished = sorted(p.parent.name for p in out.glob("*/meta.json"))
+    assert finished, "some frames fit on the disk"
+    _check_complete(out, finished)                       # every finished frame is whole
+    # the summary may not fit either; when it did, it names the failures
+    if summary_path.exists():
+        failed = json.loads(summary_path.read_text())["failed"]
+        assert failed and all("No space left" in f["error"] for f in failed)
+    assert len(finished) < 40
+    err = capsys.readouterr().err
+    assert "No space left on device" in err
+
+
+def test_read_only_output_folder(raw_dir, tmp_path, tiny_disk, capsys):
+    out = tiny_disk / "out"
+    out.mkdir()
+    subprocess.run(["mount", "-o", "remount,ro", str(tiny_disk)], check=True, capture_output=True)
+    code = main(["process", str(raw_dir), "-o", str(out), "--quiet", "--workers", "1", "--method", "imin"])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert "Read-only file system" in err
+
+
+def test_real_imx250mzr_frames_end_to_end(shared_data, tmp_path):
+    out = tmp_path / "out"
+    assert main(["process", str(shared_data / "real-imx250mzr"), "-o", str(out), "--layout", "imx250mzr",
+                 "--quiet", "--workers", "1"]) == 0
+    for name in ("fruits", "carps"):
+        meta = json.loads((out / name / "meta.json").read_text())
+        assert meta["method"] == "imin" and meta["shape"] == [4, 1024, 1224]
+        d, _ = read_image(out / name / "diffuse.exr")
+        s, _ = read_image(out / name / "specular.exr")
+        assert d.shape[:2] == (1024, 1224) and d.min() >= 0 and s.min() >= -1e-6
+    # the water reflection of "carps" is strongly polarized: imin removes much more there
+    spec = {n: float(read_image(out / n / "specular.exr")[0].mean()) for n in ("fruits", "carps")}
+    assert spec["carps"] > 2 * spec["fruits"]

@@ -29,6 +29,12 @@ leaves neither half-written.
 
 from __future__ import annotations
 
+import shutil
+
+import os
+
+import errno
+
 import contextlib
 import json
 from collections.abc import Mapping
@@ -69,6 +75,16 @@ def _oiio():
     return oiio
 
 
+def _oiio_failure(message: str, folder: Path) -> str:
+    """OpenImageIO's message, plus the likely cause it does not name (a full or read-only disk)."""
+    try:
+        if shutil.disk_usage(folder).free < 64 * 1024:
+            return f"{message} ({os.strerror(errno.ENOSPC)})"
+    except OSError:
+        pass
+    return message
+
+
 def _write_oiio(tmp: Path, target: Path, pixels: np.ndarray, spec: Any) -> None:
     """Write (H, W, C) ``pixels`` with ``spec`` to ``tmp``; OIIO errors name ``target``."""
     oiio = _oiio()
@@ -80,11 +96,13 @@ def _write_oiio(tmp: Path, target: Path, pixels: np.ndarray, spec: Any) -> None:
             raise FrameWriteError(f"cannot write: {out.geterror() or oiio.geterror()}", path=target)
         ok = out.write_image(np.ascontiguousarray(pixels))
         if not ok:
-            raise FrameWriteError(f"cannot write: {out.geterror() or oiio.geterror()}", path=target)
+            raise FrameWriteError(_oiio_failure(f"cannot write: {out.geterror() or oiio.geterror()}",
+                                                tmp.parent), path=target)
     finally:
         closed = out.close()
     if not closed:
-        raise FrameWriteError(f"cannot write: {out.geterror() or oiio.geterror()}", path=target)
+        raise FrameWriteError(_oiio_failure(f"cannot write: {out.geterror() or oiio.geterror()}",
+                                            tmp.parent), path=target)
 
 
 def _check_float_image(arr: np.ndarray, target: Path) -> np.ndarray:
