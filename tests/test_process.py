@@ -338,3 +338,22 @@ def test_real_imx250mzr_frames_end_to_end(shared_data, tmp_path):
     # the water reflection of "carps" is strongly polarized: imin removes much more there
     spec = {n: float(read_image(out / n / "specular.exr")[0].mean()) for n in ("fruits", "carps")}
     assert spec["carps"] > 2 * spec["fruits"]
+
+
+def test_unreadable_input_is_reported(raw_dir, tmp_path, monkeypatch):
+    """Root reads any file, so a permission error is injected where the input is opened."""
+    import polcam.process as proc
+
+    real = proc.sha256_file
+
+    def denied(path):
+        if Path(path).name == "colour1.npy":
+            raise PermissionError(13, "Permission denied", str(path))
+        return real(path)
+
+    monkeypatch.setattr(proc, "sha256_file", denied)
+    jobs, _ = plan([raw_dir], tmp_path / "out")
+    results = {r["name"]: r for r in run(jobs, ProcessOptions(method="imin"))}
+    assert results["colour1"]["status"] == "failed"
+    assert "Permission denied" in results["colour1"]["error"] and "colour1.npy" in results["colour1"]["error"]
+    assert results["colour0"]["status"] == "done" and results[MONO]["status"] == "done"
