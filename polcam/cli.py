@@ -410,6 +410,10 @@ def build_parser() -> argparse.ArgumentParser:
                                                         "(one per frame, then a summary)")
     pr.set_defaults(func=cmd_process)
 
+    from polcam.calibration.cli import add_calibrate_parser
+
+    add_calibrate_parser(sub)
+
     d = sub.add_parser("demo", help="run the main job on the bundled fixtures",
                        description="Run polcam on the raw frames bundled in fixtures/raw and write "
                                    "the results to --out.")

@@ -247,7 +247,7 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
 
     timings: dict[str, float] = {}
     if opts.calibration:
-        frame = _apply_calibration(frame, opts.calibration)
+        frame = _apply_calibration(frame, opts.calibration, parts["calibration_sha256"])
     timings["read"] = time.perf_counter() - t0
     t = time.perf_counter()
     stack = demosaic(frame, method=opts.demosaic, resolution=opts.resolution)
@@ -305,12 +305,21 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
     return meta
 
 
-def _apply_calibration(frame: Any, path: str) -> Any:
-    try:
-        from polcam.calibration import apply_calibration, load_calibration
-    except ImportError as exc:  # pragma: no cover - calibration ships with polcam
-        raise PolcamError(f"calibration support is not available: {exc}", path=path) from None
-    return apply_calibration(frame, load_calibration(path))
+_CALIBRATIONS: dict[tuple[str, str], Any] = {}
+
+
+def _apply_calibration(frame: Any, path: str, digest: str) -> Any:
+    """Dark, flat, defects and the polarimetric correction on the mosaic (polcam.calibration).
+
+    The calibration is loaded once per process (its per-cell matrices are cached on it).
+    """
+    from polcam.calibration import apply_calibration, load_calibration
+
+    key = (str(Path(path).resolve()), digest)
+    if key not in _CALIBRATIONS:
+        _CALIBRATIONS.clear()
+        _CALIBRATIONS[key] = load_calibration(path)
+    return apply_calibration(frame, _CALIBRATIONS[key])
 
 
 class RunRecording:

@@ -357,3 +357,30 @@ def test_unreadable_input_is_reported(raw_dir, tmp_path, monkeypatch):
     assert results["colour1"]["status"] == "failed"
     assert "Permission denied" in results["colour1"]["error"] and "colour1.npy" in results["colour1"]["error"]
     assert results["colour0"]["status"] == "done" and results[MONO]["status"] == "done"
+
+
+def test_calibration_is_applied_and_recorded(raw_dir, tmp_path, fixtures_dir):
+    """A dark calibration of the mono frame's sensor: applied, hashed into the fingerprint; a
+    calibration of another size is refused for that frame only."""
+    from polcam.calibration import calibrate_dark, save_calibration
+
+    rng = np.random.default_rng(0)
+    darks = rng.poisson(6.0, (8, 512, 640)).astype(np.uint8)
+    cal = save_calibration(tmp_path / "dark.npz", calibrate_dark(darks, layout="imx250mzr"))
+    out = tmp_path / "out"
+    code = main(["process", str(raw_dir), "-o", str(out), "--quiet", "--workers", "1",
+                 "--method", "imin", "--calibration", str(cal)])
+    assert code == 1                                        # the 64x64 colour frames do not match
+    summary = json.loads((out / "summary.json").read_text())
+    assert {Path(f["input"]).name for f in summary["failed"]} == {"colour0.npy", "colour1.npy"}
+    meta = json.loads((out / MONO / "meta.json").read_text())
+    import hashlib
+
+    assert meta["calibration_sha256"] == hashlib.sha256(cal.read_bytes()).hexdigest()
+    calibrated, _ = read_image(out / MONO / "s0.exr")
+    plain = tmp_path / "plain"
+    assert main(["process", str(raw_dir / f"{MONO}.png"), "-o", str(plain), "--quiet",
+                 "--method", "imin"]) == 0
+    uncal, _ = read_image(plain / MONO / "s0.exr")
+    # the dark (about 6 counts of 255 per pixel) is subtracted: S0 = sum of four pixels / 2 drops by ~12/255
+    assert 0.03 < float(np.mean(uncal - calibrated)) < 0.065
