@@ -411,7 +411,9 @@ def build_parser() -> argparse.ArgumentParser:
     pr.set_defaults(func=cmd_process)
 
     from polcam.calibration.cli import add_calibrate_parser
+    from polcam.capture import add_capture_parser
 
+    add_capture_parser(sub)
     add_calibrate_parser(sub)
 
     d = sub.add_parser("demo", help="run the main job on the bundled fixtures",

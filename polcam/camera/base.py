@@ -1,0 +1,440 @@
+"""The camera protocol every polcam camera backend follows.
+
+A camera is used as a context manager::
+
+    with open_camera("Fake_1") as cam:            # open() ... close()
+        cam.configure(pixel_format="Mono8", layout="imx250mzr", exposure_us=5000)
+        cam.start()
+        for frame in cam.frames(timeout=1.0):     # good frames only
+            ...
+        cam.stop()
+        print(cam.stats())
+
+Two backends implement it: :class:`polcam.camera.aravis.AravisCamera`
+(GenICam cameras through Aravis 0.8) and
+:class:`polcam.camera.replay.ReplayCamera` (``replay:DIR``, a folder of raw
+frames played back as a camera).  Both deliver :class:`CapturedFrame` objects
+(a :class:`polcam.frame.Frame` with the bytes the camera sent) carrying the
+sidecar metadata of DESIGN.md section 3, and both count what did not arrive
+in a :class:`StreamStats`: frames whose buffer came back incomplete (missing
+packets, size mismatch, timeout ...) are counted and never handed on as good
+frames; frames the camera produced that polcam never saw (gaps in the frame
+ids, a full frame queue) are counted as dropped.
+
+Acquisition runs in the backend's own thread, which never waits for the
+consumer: frames go into a bounded queue and a frame that finds the queue
+full is dropped (and counted), so a slow consumer costs frames, never a
+stalled camera.
+"""
+
+from __future__ import annotations
+
+import abc
+import queue
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from polcam.errors import CameraUnavailableError, PolcamError
+from polcam.frame import Frame
+from polcam.mosaic import Layout
+
+__all__ = [
+    "Camera",
+    "CameraBusyError",
+    "CameraNotFoundError",
+    "CameraSettingError",
+    "CapturedFrame",
+    "FrameIdTracker",
+    "StreamStats",
+    "TRIGGER_MODES",
+    "open_camera",
+]
+
+#: Trigger modes besides a hardware line name (``Line0``, ``Line1``, ...).
+TRIGGER_MODES: tuple[str, ...] = ("free", "software")
+
+
+class CameraNotFoundError(CameraUnavailableError):
+    """No camera with the requested id (the message says how to list them)."""
+
+
+class CameraBusyError(CameraUnavailableError):
+    """The camera exists but another program controls it."""
+
+
+class CameraSettingError(PolcamError):
+    """A setting the camera refuses or does not have (names the setting and the value)."""
+
+
+@dataclass
+class CapturedFrame(Frame):
+    """A frame as a camera delivered it.
+
+    Attributes
+    ----------
+    payload
+        The image bytes exactly as the camera sent them (in the pixel
+        format's packing), or ``None`` when the frame did not come as a
+        byte buffer (the replay camera reading a PNG).  A raw dump of a
+        captured frame is these bytes.
+    """
+
+    payload: bytes | None = None
+
+
+@dataclass
+class StreamStats:
+    """Counters of one acquisition.
+
+    Attributes
+    ----------
+    good
+        Complete frames the camera delivered (handed on, or dropped because
+        the frame queue was full).
+    incomplete
+        Frames whose buffer came back with an error status (missing packets,
+        size mismatch, timeout, wrong packet id, ...); never handed on.
+    dropped
+        Frames the camera produced that never reached the consumer: gaps in
+        the frame ids plus frames that found the frame queue full.
+    queue_overflow
+        The part of ``dropped`` lost to a full frame queue (the consumer was
+        too slow).
+    by_status
+        Buffers per status name (``success``, ``missing-packets``, ...,
+        including ``aborted`` buffers cancelled when acquisition stops, which
+        are not counted as incomplete).
+    stream
+        The backend's own counters (Aravis stream statistics: received and
+        missing packets, resends, underruns, ...).
+    """
+
+    good: int = 0
+    incomplete: int = 0
+    dropped: int = 0
+    queue_overflow: int = 0
+    by_status: dict[str, int] = field(default_factory=dict)
+    stream: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict for JSON."""
+        return {
+            "good": self.good,
+            "incomplete": self.incomplete,
+            "dropped": self.dropped,
+            "queue_overflow": self.queue_overflow,
+            "by_status": dict(self.by_status),
+            "stream": dict(self.stream),
+        }
+
+
+class FrameIdTracker:
+    """Count frames missing from a sequence of camera frame ids.
+
+    GigE Vision block ids are 16-bit and skip 0 (65535 is followed by 1);
+    other cameras count up without wrapping.  A step back that is not such a
+    wrap is taken as a counter reset (a restarted acquisition), not as loss.
+    """
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+        self.missing = 0
+
+    def see(self, frame_id: int) -> int:
+        """Record ``frame_id``; return how many ids were skipped before it."""
+        fid = int(frame_id)
+        gap = 0
+        if self.last is not None:
+            step = fid - self.last
+            if step > 0:
+                gap = step - 1
+            elif self.last >= 0xF000 and fid < 0x1000 and self.last <= 0xFFFF:
+                # 16-bit wrap (GigE Vision block id 0 is never used)
+                gap = (0xFFFF - self.last) + (fid - 1)
+        self.last = fid
+        self.missing += gap
+        return gap
+
+
+class Camera(abc.ABC):
+    """A source of raw polarization frames.
+
+    Subclasses implement :meth:`open`, :meth:`close`, :meth:`configure`,
+    :meth:`_start`, :meth:`_stop` and fill the frame queue from their own
+    acquisition thread with :meth:`_deliver`.
+
+    Parameters
+    ----------
+    camera_id
+        The id the camera was asked for (``Fake_1``, a serial, ``replay:DIR``).
+    queue_frames
+        Capacity of the frame queue between the acquisition thread and the
+        consumer; a frame that finds it full is dropped and counted.
+    """
+
+    def __init__(self, camera_id: str, *, queue_frames: int = 8) -> None:
+        if int(queue_frames) < 1:
+            raise CameraSettingError(f"queue_frames {queue_frames!r}: expected a positive integer")
+        self.camera_id = str(camera_id)
+        self._queue: queue.Queue[CapturedFrame] = queue.Queue(maxsize=int(queue_frames))
+        self._stats = StreamStats()
+        self._stats_lock = threading.Lock()
+        self._running = False
+        self._finished = threading.Event()  # a finite source has delivered everything
+        self._opened = False
+
+    # ---------------------------------------------------------------- context
+    def __enter__(self) -> Camera:
+        if not self._opened:
+            self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            if self._running:
+                self.stop()
+        finally:
+            self.close()
+
+    # ------------------------------------------------------------ to implement
+    @abc.abstractmethod
+    def open(self) -> Camera:
+        """Connect to the camera; returns ``self``."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release the camera (stops acquisition first)."""
+
+    @abc.abstractmethod
+    def configure(
+        self,
+        *,
+        pixel_format: str | None = None,
+        layout: str | Layout | None = None,
+        exposure_us: float | None = None,
+        gain_db: float | None = None,
+        roi: tuple[int, int, int, int] | None = None,
+        frame_rate: float | None = None,
+        trigger: str | None = None,
+        reverse_x: bool | None = None,
+        reverse_y: bool | None = None,
+    ) -> dict[str, Any]:
+        """Apply settings; ``None`` leaves a setting as it is.
+
+        Parameters
+        ----------
+        pixel_format
+            GenICam PixelFormat name; must be one the camera offers and polcam
+            reads.
+        layout
+            Sensor layout for cameras whose format does not say where the
+            polarizers are (plain Mono/Bayer formats).
+        exposure_us
+            Exposure time, microseconds.
+        gain_db
+            Gain (dB on SFNC cameras; raw units where the camera only has GainRaw).
+        roi
+            ``(x, y, width, height)`` on the sensor.  Offsets and sizes are
+            rounded down to multiples of the layout's period (2 mono, 4
+            colour) and of the camera's increments, so the delivered image
+            starts on a whole polarizer (and colour) cell.
+        frame_rate
+            Frames per second.
+        trigger
+            ``"free"`` (free-running), ``"software"`` (:meth:`trigger`
+            releases each frame) or a hardware line name (``Line0`` ...).
+        reverse_x, reverse_y
+            GenICam ReverseX / ReverseY, where the camera has them.
+
+        Returns
+        -------
+        dict
+            The settings as the camera reports them afterwards (what frames
+            will carry), including ``layout`` (the delivered image's layout)
+            and ``ignored`` (settings this camera cannot apply).
+        """
+
+    @abc.abstractmethod
+    def _start(self) -> None:
+        """Start the acquisition thread."""
+
+    @abc.abstractmethod
+    def _stop(self) -> None:
+        """Stop and join the acquisition thread."""
+
+    def trigger(self) -> None:
+        """Release one frame (``trigger="software"``)."""
+        raise CameraSettingError(f"camera {self.camera_id} has no software trigger")
+
+    @property
+    @abc.abstractmethod
+    def layout(self) -> Layout | None:
+        """Layout of the delivered images (after ROI and mirroring)."""
+
+    @property
+    def info(self) -> dict[str, Any]:
+        """Vendor, model, serial, protocol ... (for the capture summary)."""
+        return {"id": self.camera_id}
+
+    # ---------------------------------------------------------------- running
+    def start(self) -> None:
+        """Start acquisition (frames begin to fill the queue)."""
+        if self._running:
+            return
+        with self._stats_lock:
+            self._stats = StreamStats()
+        self._finished.clear()
+        self._drain_queue()
+        self._start()
+        self._running = True
+
+    def stop(self) -> None:
+        """Stop acquisition.  Frames already queued can still be read."""
+        if not self._running:
+            return
+        self._running = False
+        self._stop()
+
+    @property
+    def running(self) -> bool:
+        """True between :meth:`start` and :meth:`stop`."""
+        return self._running
+
+    @property
+    def exhausted(self) -> bool:
+        """True when no frame will come any more: a finite source played out
+        (or acquisition stopped) and the queue is empty."""
+        return (self._finished.is_set() or not self._running) and self._queue.empty()
+
+    def read(self, timeout: float = 1.0) -> CapturedFrame | None:
+        """The next good frame, or ``None`` when none arrives within ``timeout`` seconds
+        (at once when a finite source has delivered everything)."""
+        deadline = time.monotonic() + max(0.0, float(timeout))
+        while True:
+            remaining = deadline - time.monotonic()
+            try:
+                return self._queue.get(timeout=min(0.05, max(0.0, remaining)))
+            except queue.Empty:
+                if remaining <= 0 or (self._finished.is_set() and self._queue.empty()):
+                    return None
+
+    def frames(self, *, timeout: float = 1.0, idle_timeout: float | None = None) -> Iterator[CapturedFrame]:
+        """Good frames until the source is exhausted or acquisition stops.
+
+        Parameters
+        ----------
+        timeout
+            Seconds of each wait (the loop checks for the end in between).
+        idle_timeout
+            Raise :class:`TimeoutError` when no frame came for this many
+            seconds (``None``: wait for ever).
+        """
+        last = time.monotonic()
+        while True:
+            frame = self.read(timeout)
+            if frame is not None:
+                last = time.monotonic()
+                yield frame
+                continue
+            if self.exhausted:
+                return
+            if idle_timeout is not None and time.monotonic() - last > idle_timeout:
+                raise TimeoutError(
+                    f"camera {self.camera_id}: no frame for {idle_timeout:g} s "
+                    "(trigger not firing? see the stream statistics)"
+                )
+
+    def stats(self) -> StreamStats:
+        """A snapshot of the acquisition counters."""
+        with self._stats_lock:
+            s = self._stats
+            snap = StreamStats(s.good, s.incomplete, s.dropped, s.queue_overflow,
+                               dict(s.by_status), dict(s.stream))
+        snap.stream.update(self._backend_stats())
+        return snap
+
+    def _backend_stats(self) -> dict[str, Any]:
+        return {}
+
+    # --------------------------------------------------------- for backends
+    def _count(self, status: str, *, incomplete: bool = False, dropped: int = 0) -> None:
+        with self._stats_lock:
+            self._stats.by_status[status] = self._stats.by_status.get(status, 0) + 1
+            if incomplete:
+                self._stats.incomplete += 1
+            self._stats.dropped += dropped
+
+    def _count_dropped(self, n: int) -> None:
+        if n:
+            with self._stats_lock:
+                self._stats.dropped += n
+
+    def _deliver(self, frame: CapturedFrame, *, block: bool = False,
+                 stop: threading.Event | None = None) -> bool:
+        """Queue a good frame from the acquisition thread.
+
+        With ``block=False`` (a live camera) a full queue drops the frame and
+        counts it; with ``block=True`` (a lossless file source) it waits for
+        room until ``stop`` is set.  Returns True when the frame was queued.
+        """
+        with self._stats_lock:
+            self._stats.good += 1
+            self._stats.by_status["success"] = self._stats.by_status.get("success", 0) + 1
+        if not block:
+            try:
+                self._queue.put_nowait(frame)
+                return True
+            except queue.Full:
+                with self._stats_lock:
+                    self._stats.dropped += 1
+                    self._stats.queue_overflow += 1
+                return False
+        while True:
+            try:
+                self._queue.put(frame, timeout=0.05)
+                return True
+            except queue.Full:
+                if stop is not None and stop.is_set():
+                    with self._stats_lock:
+                        self._stats.dropped += 1
+                        self._stats.queue_overflow += 1
+                    return False
+
+    def _drain_queue(self) -> None:
+        while True:
+            try:
+                self._queue.get_nowait()
+            except queue.Empty:
+                return
+
+
+def open_camera(device: str, **options: Any) -> Camera:
+    """The camera for a ``--device`` string (not yet opened).
+
+    Parameters
+    ----------
+    device
+        ``replay:DIR`` for the file-backed camera, anything else is an Aravis
+        device id (``polcam devices`` lists them; ``Fake_1`` is Aravis'
+        simulated camera).
+    options
+        Passed to the backend's constructor (``frame_rate``/``loop`` for
+        replay; ``n_buffers``, ``packet_size``, ``socket_buffer_bytes`` for
+        Aravis; ``queue_frames`` for both).
+    """
+    dev = str(device).strip()
+    if not dev:
+        raise CameraNotFoundError(
+            "no camera id given; list the cameras with `polcam devices` "
+            "(or use replay:DIR to play a folder of raw frames)"
+        )
+    if dev.startswith("replay:"):
+        from polcam.camera.replay import ReplayCamera
+
+        return ReplayCamera(dev[len("replay:"):], **options)
+    from polcam.camera.aravis import AravisCamera
+
+    return AravisCamera(dev, **options)

@@ -1,0 +1,164 @@
+"""The Rerun sink: compact 8-bit encodings, entity paths, timelines, read back with Rerun's reader."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+import numpy as np
+import pytest
+
+from polcam.sinks.rerun import (
+    ENTITIES,
+    RerunSink,
+    aolp_ids,
+    blueprint,
+    dolp_ids,
+    mosaic_u8,
+    palettes,
+    unit_u8,
+)
+
+
+def _read(path):
+    """{entity: {"frames": set, "rows": [record batches]}} of a .rrd, static rows under "static"."""
+    import rerun.chunk as ch
+
+    out: dict[str, dict] = defaultdict(lambda: {"frames": set(), "batches": [], "static": []})
+    for chunk in ch.RrdReader(path).stream():
+        rb = chunk.to_record_batch()
+        e = out[str(chunk.entity_path)]
+        if chunk.is_static:
+            e["static"].append(rb)
+            continue
+        e["batches"].append(rb)
+        if "frame" in rb.schema.names:
+            e["frames"] |= set(rb.column("frame").to_pylist())
+    return out
+
+
+def _image(batches, prefix, frame):
+    for rb in batches:
+        frames = rb.column("frame").to_pylist()
+        if frame in frames:
+            i = frames.index(frame)
+            fmt = rb.column(f"{prefix}:format")[i].as_py()[0]
+            buf = np.asarray(rb.column(f"{prefix}:buffer")[i].as_py()[0], dtype=np.uint8)
+            return fmt, buf
+    raise AssertionError(f"frame {frame} not logged")
+
+
+def test_unit_u8_rounds_and_saturates():
+    x = np.array([[-0.5, 0.0, 0.1, 0.5, 1.0, 1.7]], dtype=np.float32)
+    expect = np.clip(np.rint(x.astype(np.float64) * 255), 0, 255).astype(np.uint8)
+    np.testing.assert_array_equal(unit_u8(x), expect)
+    np.testing.assert_array_equal(unit_u8(x, scale=0.5), np.clip(np.rint(x * 127.5), 0, 255).astype(np.uint8))
+    rgb = np.stack([x, x * 0.5, x * 0.25], axis=-1)
+    np.testing.assert_array_equal(unit_u8(rgb)[..., 2], np.clip(np.rint(x * 0.25 * 255), 0, 255).astype(np.uint8))
+    # 16-bit fixed point and 8-bit display values
+    q = np.array([[0, 8192, 16384, 30000]], dtype=np.uint16)
+    np.testing.assert_array_equal(unit_u8(q, scale=1 / 16384), [[0, 128, 255, 255]])
+    u = np.array([[0, 7, 255]], dtype=np.uint8)
+    np.testing.assert_array_equal(unit_u8(u, scale=1 / 255), u)
+
+
+def test_dolp_classes():
+    d = np.array([[0.0, 0.5, 1.0, 1.5]], dtype=np.float32)
+    np.testing.assert_array_equal(dolp_ids(d), [[1, 128, 255, 255]])
+
+
+def test_aolp_classes_wrap_at_180_degrees():
+    deg = np.array([[0.0, 45.0, 90.0, 179.4, 179.6]])
+    ids = aolp_ids(np.deg2rad(deg).astype(np.float32))
+    np.testing.assert_array_equal(ids, [[1, 46, 91, 180, 1]])  # 179.6 rounds to 180 = 0 degrees
+
+
+def test_palettes_match_the_colour_maps():
+    import matplotlib
+
+    pal = palettes()
+    dolp = {i: c for i, _, c in pal["dolp"]}
+    assert sorted(dolp) == list(range(1, 256))
+    vir = matplotlib.colormaps["viridis"]
+    for i in (1, 64, 128, 200, 255):
+        ref = np.array(vir((i - 1) / 254)[:3]) * 255
+        assert np.abs(np.array(dolp[i]) - ref).max() <= 3, (i, dolp[i], ref)
+    aolp = {i: (label, c) for i, label, c in pal["aolp"]}
+    assert sorted(aolp) == list(range(1, 181))
+    # AoLP a degrees is hue 2a: 0 red, 60 (hue 120) green, 120 (hue 240) blue
+    assert aolp[1] == ("AoLP 0 deg", (255, 0, 0))
+    assert aolp[61][1] == (0, 255, 0) and aolp[121][1] == (0, 0, 255)
+    assert aolp[31][1] == (255, 255, 0)  # AoLP 30: hue 60, yellow
+
+
+def test_mosaic_u8_keeps_the_top_bits():
+    m = np.array([[0, 15, 16, 2048, 4095]], dtype=np.uint16)
+    np.testing.assert_array_equal(mosaic_u8(m, bit_depth=12), np.rint(m / 16.0).clip(0, 255).astype(np.uint8))
+    m8 = np.array([[3, 200]], dtype=np.uint8)
+    np.testing.assert_array_equal(mosaic_u8(m8, bit_depth=8), m8)
+
+
+def test_sink_writes_the_entities_of_the_design(tmp_path):
+    path = tmp_path / "live.rrd"
+    sink = RerunSink(path, raw_every=2, view_scale=0.5)
+    rng = np.random.default_rng(3)
+    ic = rng.random((8, 12)).astype(np.float32)
+    dolp = rng.random((8, 12)).astype(np.float32)
+    aolp = (rng.random((8, 12)) * np.pi).astype(np.float32)
+    mosaic = rng.integers(0, 4096, (16, 24)).astype(np.uint16)
+    for i in range(3):
+        sink.log_raw(i, 1000 + i, mosaic, bit_depth=12)
+        sink.log_polarization(i, 1000 + i, ic=ic, dolp=dolp, aolp=aolp)
+        sink.log_layers(i, 1000 + i, diffuse=ic * 0.5, specular=ic * 0.5)
+        sink.log_stats(i, 1000 + i, fps=20.0, dropped=i, incomplete=0, separation_seconds=0.01)
+    sink.close()
+    data = _read(path)
+    assert set(ENTITIES.values()) <= set(data)
+    for role in ("s0", "dolp", "aolp", "diffuse", "specular", "fps", "dropped", "incomplete",
+                 "separation_seconds"):
+        assert data[ENTITIES[role]]["frames"] == {0, 1, 2}, role
+    assert data[ENTITIES["raw"]]["frames"] == {0, 2}  # every second frame
+    # images are 8-bit at half the size given; DoLP is a class image with its palette static
+    fmt, buf = _image(data[ENTITIES["s0"]]["batches"], "Image", 1)
+    assert (fmt["width"], fmt["height"]) == (6, 4) and buf.size == 24
+    expect = unit_u8(ic).reshape(4, 2, 6, 2).astype(np.float64).mean(axis=(1, 3))
+    assert np.abs(buf.reshape(4, 6) - expect).max() <= 1.0
+    fmt, buf = _image(data[ENTITIES["raw"]]["batches"], "Image", 2)
+    np.testing.assert_array_equal(buf.reshape(16, 24), mosaic_u8(mosaic, bit_depth=12))
+    assert data[ENTITIES["dolp"]]["static"] and data[ENTITIES["aolp"]]["static"]
+    fmt, buf = _image(data[ENTITIES["aolp"]]["batches"], "SegmentationImage", 0)
+    np.testing.assert_array_equal(buf.reshape(4, 6), aolp_ids(aolp)[::2, ::2])  # nearest: no averaging
+    batch = data[ENTITIES["dropped"]]["batches"][0]
+    assert "device_time" in batch.schema.names
+
+
+def test_sink_refuses_bad_targets_and_options(tmp_path):
+    with pytest.raises(ValueError, match="rrd"):
+        RerunSink(tmp_path / "live.txt")
+    with pytest.raises(ValueError, match="view_scale"):
+        RerunSink(tmp_path / "a.rrd", view_scale=2.0)
+    with pytest.raises(ValueError, match="raw_every"):
+        RerunSink(tmp_path / "b.rrd", raw_every=0)
+    sink = RerunSink(tmp_path / "c.rrd")
+    with pytest.raises(ValueError, match="unknown statistics"):
+        sink.log_stats(0, None, frames_per_hour=1.0)
+    sink.close()
+
+
+def test_blueprint_views_every_image_entity():
+    import rerun.blueprint as rrb
+
+    bp = blueprint()
+    assert isinstance(bp, rrb.Blueprint)
+    origins = {}
+
+    def walk(node):
+        for child in getattr(node, "contents", None) or []:
+            if hasattr(child, "origin"):
+                origins[str(child.origin)] = type(child).__name__
+            else:
+                walk(child)
+
+    walk(bp.root_container)
+    for role in ("raw", "s0", "dolp", "aolp", "diffuse", "specular"):
+        assert origins[ENTITIES[role]] == "Spatial2DView"
+    assert origins["/stats"] == "TimeSeriesView"
