@@ -235,7 +235,8 @@ def cmd_process(args: argparse.Namespace) -> int:
             progress.update(task, advance=1, rate=f"{counter['n'] / max(elapsed, 1e-9) * 60:.1f} frames/min")
 
     try:
-        results = proc.run(jobs, opts, workers=args.workers or proc.default_workers(),
+        workers = max(1, min(args.workers or proc.default_workers(), len(jobs)))
+        results = proc.run(jobs, opts, workers=workers,
                            scheduler=args.scheduler, force=args.force, on_result=on_result,
                            stop=lambda: interrupted)
     finally:
