@@ -118,46 +118,35 @@ def cmd_stokes(args: argparse.Namespace) -> int:
     return 1 if summary["failed"] else 0
 
 
-def _separate_frames(files: Sequence[Path], out_dir: Path, *, method: str | None) -> list[str]:
-    """Diffuse/specular layers of each frame at the polarizer-cell resolution."""
-    from polcam.demosaic import demosaic
-    from polcam.io import read_frame, write_image
-    from polcam.separation import separate
-
-    lines = []
-    for path in files:
-        frame = read_frame(path)
-        assert frame.layout is not None
-        chosen = method or ("tensor" if frame.layout.is_color else "imin")
-        stack = np.clip(demosaic(frame, method="eari", resolution="cell"), 0.0, 1.0)
-        res = separate(stack, method=chosen)
-        meta = {"input": str(path), "method": chosen, "resolution": "cell",
-                "polcam_version": __version__,
-                **{k: v for k, v in res.info.items() if k in ("seconds", "iterations", "converged")}}
-        for name, arr in (("diffuse", res.diffuse), ("specular", res.specular)):
-            write_image(out_dir / path.stem / f"{name}.exr", arr, metadata={**meta, "product": name})
-        lines.append(f"{path.name}: {chosen} at cell resolution {stack.shape[1:3]}: "
-                     f"diffuse/specular in {res.info['seconds']:.1f} s")
-    return lines
-
-
 def cmd_demo(args: argparse.Namespace) -> int:
+    """Replay capture of the fixtures, Stokes maps, separation, and a Rerun recording."""
     src = args.input or FIXTURES / "raw"
     if not src.is_dir():
         print(f"error: fixture folder {src} not found (give --input DIR)", file=sys.stderr)
         return 2
+    out: Path = args.out
     method = args.demosaic or "eari"
-    print(f"polcam {__version__} demo: raw frames in {src} -> {args.out}")
-    print(f"demosaic: {method}")
-    files = _inputs([src], recursive=False)
-    summary = _run_stokes(files, args.out, layout=None, method=method, resolution="full", fmt="exr")
-    done = [Path(f["input"]) for f in summary["frames"]]
-    for line in _separate_frames(done, args.out, method=args.separate):
-        print(line)
-    print(f"demo done: {summary['done']} frame(s) in {args.out.resolve()} "
-          f"(per frame: i000..i135, s0, s1, s2, dolp, aolp, residual, diffuse, specular as EXR, "
-          f"meta.json), {len(summary['failed'])} failed")
-    return 1 if summary["failed"] else 0
+    print(f"polcam {__version__} demo: raw frames in {src} -> {out}")
+    n = len(_inputs([src], recursive=False))
+    print(f"1/3 capture: the replay camera plays the {n} frame(s) of {src} into {out / 'capture'}")
+    code = main(["capture", "--device", f"replay:{src}", "--frames", str(n), "--out", str(out / "capture"),
+                 "--separate", "none", "--quiet"])
+    if code:
+        return code
+    captured = _inputs([out / "capture"], recursive=False)
+    print(f"2/3 demosaic ({method}) and Stokes maps at full resolution -> {out / 'stokes'}")
+    summary = _run_stokes(captured, out / "stokes", layout=None, method=method, resolution="full", fmt="exr")
+    if summary["failed"]:
+        return 1
+    print(f"3/3 separation at the polarizer-cell resolution (tensor for colour, imin for mono) -> "
+          f"{out / 'layers'}; Rerun recording {out / 'demo.rrd'}")
+    sep = ["--method", args.separate] if args.separate else []
+    code = main(["process", str(out / "capture"), "-o", str(out / "layers"), "--demosaic", method,
+                 "--rerun", str(out / "demo.rrd"), "--quiet", *sep])
+    print(f"demo done: {len(captured)} frame(s) in {out.resolve()}: capture/ (raw frames + sidecars), "
+          f"stokes/<frame>/ (i000..i135, s0, s1, s2, dolp, aolp, residual), layers/<frame>/ "
+          f"(diffuse, specular, s0, dolp, aolp, meta.json), demo.rrd (view it with `rerun {out / 'demo.rrd'}`)")
+    return code
 
 
 def _parse_option(text: str) -> tuple[str, Any]:
@@ -418,8 +407,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_calibrate_parser(sub)
 
     d = sub.add_parser("demo", help="run the main job on the bundled fixtures",
-                       description="Run polcam on the raw frames bundled in fixtures/raw and write "
-                                   "the results to --out.")
+                       description="Run polcam on the raw frames bundled in fixtures/raw: capture them "
+                                   "with the replay camera, write full-resolution Stokes maps, separate "
+                                   "diffuse and specular layers (polcam process) and record the run "
+                                   "for the Rerun viewer, all under --out.")
     d.add_argument("--out", type=Path, default=Path("demo-output"), help="output folder (default demo-output)")
     d.add_argument("--input", type=Path, help="folder of raw frames (default: the bundled fixtures)")
     d.add_argument("--demosaic", choices=DEMOSAIC_METHODS, help="demosaicing method (default: eari)")

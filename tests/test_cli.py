@@ -86,16 +86,21 @@ def test_missing_layout_is_reported(tmp_path, capsys):
 
 
 def test_demo_runs_on_the_bundled_fixtures(tmp_path, capsys):
-    # the tensor method on the colour fixture takes ~10 s: the test uses imin for both frames
+    # the tensor method on the colour fixture takes seconds: the test uses imin for both frames
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--separate", "imin"]) == 0
     assert "demo done: 2 frame(s)" in capsys.readouterr().out
-    for stem, shape in (("fruits_crop", (256, 320)), ("synthetic_bunny5", (128, 128, 3))):
-        assert (out / stem / "dolp.exr").is_file()
-        d, meta = read_image(out / stem / "diffuse.exr")
-        s, _ = read_image(out / stem / "specular.exr")
-        assert d.shape[:2] == shape[:2] and meta["method"] == "imin" and meta["resolution"] == "cell"
+    assert sorted(p.name for p in (out / "capture").glob("*.raw")) == ["frame_000000.raw", "frame_000001.raw"]
+    for stem, shape in (("frame_000000", (256, 320)), ("frame_000001", (128, 128, 3))):
+        assert (out / "stokes" / stem / "dolp.exr").is_file()
+        d, meta = read_image(out / "layers" / stem / "diffuse.exr")
+        s, _ = read_image(out / "layers" / stem / "specular.exr")
+        assert d.shape[:2] == shape[:2] and meta["method"] == "imin"
         assert np.all(d >= 0) and np.all(s >= -1e-6)
+    from rerun.chunk import RrdReader
+
+    entities = {str(c.entity_path) for c in RrdReader(str(out / "demo.rrd")).stream().to_chunks()}
+    assert {"/layers/diffuse", "/layers/specular", "/polarization/dolp"} <= entities
 
 
 def test_formats_lists_vendor_formats(capsys):
