@@ -1,0 +1,296 @@
+"""``polcam bench speed``: the tensor method's exact and fast solvers on the same inputs.
+
+Cases:
+
+* synthetic scenes (:mod:`polcam.synth.scenes`, default Bunny4) rendered at
+  each ``--sizes`` side: the exact solver (up to ``--exact-max``) and the fast
+  one on the same stack (with its default tiling, and above
+  :data:`~polcam.separation.tensor.AUTO_UNTILED_PIXELS` also as one tile, the
+  exact solver's problem), with seconds, the speed ratio, the PSNR of the diffuse
+  layer against the ground truth and its difference between the solvers, the
+  PSNR of the fast result against the exact one, iterations, tiles and peak
+  memory;
+* a full sensor frame (``--frame``): a 2448 x 2048 IMX250MYR raw mosaic made from
+  a render of ``--frame-scene`` (1224 x 1224, repeated 2 x 2 and cropped), taken
+  from raw to diffuse and specular with the fast solver at the polarizer-cell
+  resolution (1224 x 1024 per angle) and, with ``--full-resolution``, at full
+  resolution; the seconds include bilinear demosaicing.
+
+Every case runs in a fresh Python process (so that peak memory is that case's)
+and is timed there around the work only.  Peak memory is the process's largest
+resident set plus, when the tiles ran in worker processes, the largest worker's
+times the number of workers (an upper bound of the total).  The machine is
+usually shared: the load average before and after each case is recorded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from polcam.separation.tensor import AUTO_UNTILED_PIXELS
+
+__all__ = ["SpeedRow", "measure", "run", "format_markdown", "main"]
+
+
+@dataclass
+class SpeedRow:
+    """One solver on one input."""
+
+    case: str
+    solver: str
+    height: int
+    width: int
+    seconds: float
+    iterations: int
+    converged: bool
+    tiles: int
+    peak_mb: float
+    psnr: float = float("nan")            # diffuse against the ground truth (synthetic scenes)
+    psnr_delta: float = float("nan")      # this solver's PSNR minus the exact solver's
+    psnr_vs_exact: float = float("nan")   # this solver's diffuse against the exact one's
+    speedup: float = float("nan")         # exact seconds / these seconds
+    load: tuple[float, float] = (float("nan"), float("nan"))
+    options: dict[str, Any] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+    error: str = ""
+
+
+def _full_frame_raw(scene_name: str, seed: int) -> np.ndarray:
+    from polcam.synth.render import mosaic, render
+    from polcam.synth.scenes import scene
+
+    r = render(scene(scene_name), size=1224, seed=seed)
+    st = np.tile(r.stack, (1, 2, 2, 1))[:, :2048, :2448]
+    return mosaic(st, "imx250myr")
+
+
+def measure(case: dict[str, Any]) -> dict[str, Any]:
+    """Run one case in this process and return its figures (used by the child processes).
+
+    ``case`` keys: ``kind`` (``"scene"`` or ``"frame"``), ``scene``, ``size`` (scene
+    side), ``resolution`` (frame: ``"cell"`` or ``"full"``), ``seed``,
+    ``options`` (separation options, e.g. ``{"solver": "exact"}``), ``save``
+    (a .npy path for the diffuse layer, or None).
+    """
+    import resource
+    import time
+
+    from polcam.bench.quality import psnr
+    from polcam.separation import separate
+
+    opts = dict(case.get("options", {}))
+    truth = None
+    if case["kind"] == "scene":
+        from polcam.synth.render import render
+        from polcam.synth.scenes import scene
+
+        r = render(scene(case["scene"]), size=case["size"], seed=case.get("seed", 0))
+        stack, truth = r.stack, r.diffuse
+        t0 = time.perf_counter()
+        res = separate(stack, method="tensor", **opts)
+        seconds = time.perf_counter() - t0
+    else:
+        from polcam.demosaic import demosaic
+
+        raw = _full_frame_raw(case["scene"], case.get("seed", 0))
+        t0 = time.perf_counter()
+        stack = demosaic(raw, layout="imx250myr", method="bilinear", resolution=case["resolution"])
+        res = separate(stack, method="tensor", **opts)
+        seconds = time.perf_counter() - t0
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    workers = opts.get("workers") or os.cpu_count() or 1
+    peak = own + (kids * workers if res.info.get("tiles", 1) > 1 and kids > 0 else 0.0)
+    if case.get("save"):
+        np.save(case["save"], res.diffuse)
+    info = res.info
+    return {
+        "height": int(stack.shape[1]), "width": int(stack.shape[2]), "seconds": seconds,
+        "iterations": int(info.get("iterations", 0)), "converged": bool(info.get("converged")),
+        "tiles": int(info.get("tiles", 1)), "peak_mb": peak,
+        "psnr": psnr(np.clip(res.diffuse, 0, 1), truth) if truth is not None else float("nan"),
+        "timings": {k: float(v) for k, v in info.get("timings", {}).items()},
+    }
+
+
+def _load() -> float:
+    try:
+        return os.getloadavg()[0]
+    except OSError:  # pragma: no cover - not on Linux
+        return float("nan")
+
+
+def _child(case: dict[str, Any]) -> dict[str, Any]:
+    """:func:`measure` in a fresh interpreter."""
+    code = ("import json, sys; from polcam.bench.speed import measure; "
+            "print(json.dumps(measure(json.loads(sys.argv[1]))))")
+    proc = subprocess.run([sys.executable, "-c", code, json.dumps(case)], capture_output=True,
+                          text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"benchmark case {case} failed:\n{proc.stderr[-2000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bunny4",),
+        exact_max: int = 256, frame: bool = True, full_resolution: bool = False,
+        frame_scene: str = "Bunny5", options: dict[str, Any] | None = None, seed: int = 0,
+        progress: bool = True, isolate: bool = True) -> list[SpeedRow]:
+    """Time the exact and fast solvers.
+
+    Parameters
+    ----------
+    sizes
+        Sides of the square synthetic scenes.
+    scenes
+        Scene names (:func:`polcam.synth.scenes.scene`).
+    exact_max
+        Largest side the exact solver runs at (it takes minutes beyond 256).
+    frame, full_resolution
+        Also the full sensor frame at the cell resolution, and at full resolution.
+    frame_scene
+        Scene rendered for the frame.
+    options
+        Extra options of the fast solver (e.g. ``{"device": "cpu"}``, ``{"tol": 1e-3}``).
+    seed
+        Rendering seed.
+    progress
+        Print each row as it is measured.
+    isolate
+        Run each case in a fresh process (for its own peak memory); False runs
+        them here (tests).
+
+    Returns
+    -------
+    list of SpeedRow
+    """
+    fast_opts = {"solver": "fast", **(options or {})}
+    rows: list[SpeedRow] = []
+    go = _child if isolate else measure
+    with tempfile.TemporaryDirectory() as tmp:
+        cases: list[tuple[str, str, dict[str, Any]]] = []
+        for name in scenes:
+            for size in sizes:
+                base = {"kind": "scene", "scene": name, "size": int(size), "seed": seed}
+                label = f"{name} {size}x{size}"
+                if size <= exact_max:
+                    cases.append((label, "exact", {**base, "options": {"solver": "exact"}}))
+                cases.append((label, "fast", {**base, "options": fast_opts}))
+                if size * size > AUTO_UNTILED_PIXELS and "tile" not in fast_opts and size <= exact_max:
+                    # the default tiles above that size; the untiled fast solver is the exact one's problem
+                    cases.append((label, "fast, one tile", {**base, "options": {**fast_opts, "tile": size}}))
+        if frame:
+            for res_name in ("cell",) + (("full",) if full_resolution else ()):
+                cases.append((f"2448x2048 raw, {res_name} resolution", "fast",
+                              {"kind": "frame", "scene": frame_scene, "resolution": res_name,
+                               "seed": seed, "options": fast_opts}))
+        exact_rows: dict[str, tuple[SpeedRow, str]] = {}
+        for n, (label, solver, case) in enumerate(cases):
+            path = str(Path(tmp) / f"{n}.npy")
+            case = {**case, "save": path}
+            before = _load()
+            try:
+                got = go(case)
+            except (RuntimeError, MemoryError) as exc:   # report the case, go on with the others
+                rows.append(SpeedRow(case=label, solver=solver, height=0, width=0, seconds=float("nan"),
+                                     iterations=0, converged=False, tiles=0, peak_mb=float("nan"),
+                                     load=(before, _load()), options=dict(case["options"]),
+                                     error=str(exc).strip().splitlines()[-1][:200]))
+                if progress:
+                    print(f"  {label} {solver}: failed: {rows[-1].error}", flush=True)
+                continue
+            row = SpeedRow(case=label, solver=solver, height=got["height"], width=got["width"],
+                           seconds=got["seconds"], iterations=got["iterations"],
+                           converged=got["converged"], tiles=got["tiles"], peak_mb=got["peak_mb"],
+                           psnr=got["psnr"], load=(before, _load()), options=dict(case["options"]),
+                           timings=got["timings"])
+            if solver == "exact":
+                exact_rows[label] = (row, path)
+            elif label in exact_rows and not math.isnan(exact_rows[label][0].seconds):
+                ref, ref_path = exact_rows[label]
+                from polcam.bench.quality import psnr
+
+                row.psnr_delta = row.psnr - ref.psnr
+                row.psnr_vs_exact = psnr(np.load(path), np.load(ref_path))
+                row.speedup = ref.seconds / row.seconds
+            rows.append(row)
+            if progress:
+                print(_line(row), flush=True)
+    return rows
+
+
+def _f(x: float, fmt: str) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
+
+
+def _line(r: SpeedRow) -> str:
+    return (f"  {r.case:<32} {r.solver:<14} {r.seconds:8.2f} s  x{_f(r.speedup, '.1f'):>5}  "
+            f"PSNR {_f(r.psnr, '.2f')} (d {_f(r.psnr_delta, '+.3f')})  it {r.iterations}  "
+            f"tiles {r.tiles}  peak {r.peak_mb:.0f} MB  load {r.load[0]:.1f}/{r.load[1]:.1f}")
+
+
+def format_markdown(rows: Sequence[SpeedRow]) -> str:
+    """Markdown table of the rows."""
+    head = ("| input | solver | H x W | seconds | speed-up | PSNR (dB) | PSNR fast - exact | "
+            "fast vs exact (dB) | iterations | tiles | peak memory (MB) | load before/after |")
+    lines = [head, "|---" * 12 + "|"]
+    for r in rows:
+        if r.error:
+            lines.append(f"| {r.case} | {r.solver} | failed: {r.error} |" + " |" * 9)
+            continue
+        lines.append(
+            f"| {r.case} | {r.solver} | {r.height} x {r.width} | {r.seconds:.2f} | "
+            f"{_f(r.speedup, '.1f')} | {_f(r.psnr, '.2f')} | {_f(r.psnr_delta, '+.3f')} | "
+            f"{_f(r.psnr_vs_exact, '.1f')} | {r.iterations} | {r.tiles} | {r.peak_mb:.0f} | "
+            f"{r.load[0]:.1f} / {r.load[1]:.1f} |")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``polcam bench speed`` / ``python -m polcam.bench.speed``."""
+    p = argparse.ArgumentParser(prog="polcam bench speed", description=__doc__.splitlines()[0])
+    p.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512])
+    p.add_argument("--scenes", nargs="+", default=["Bunny4"])
+    p.add_argument("--exact-max", type=int, default=256,
+                   help="largest side the exact solver runs at (default 256)")
+    p.add_argument("--no-frame", action="store_true", help="skip the full sensor frame")
+    p.add_argument("--full-resolution", action="store_true",
+                   help="also the full frame at full resolution (2448 x 2048 per angle)")
+    p.add_argument("--frame-scene", default="Bunny5")
+    p.add_argument("--device", help="PyTorch device for the fast solver (default: numpy)")
+    p.add_argument("--tol", type=float, help="stopping tolerance of the fast solver")
+    p.add_argument("--workers", type=int, help="worker processes / threads (default: CPU count)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", type=Path, help="also write the rows to this file")
+    a = p.parse_args(argv)
+    options: dict[str, Any] = {}
+    if a.device:
+        options["device"] = a.device
+    if a.tol is not None:
+        options["tol"] = a.tol
+    if a.workers is not None:
+        options["workers"] = a.workers
+    print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
+    rows = run(sizes=a.sizes, scenes=a.scenes, exact_max=a.exact_max, frame=not a.no_frame,
+               full_resolution=a.full_resolution, frame_scene=a.frame_scene, options=options,
+               seed=a.seed)
+    print(format_markdown(rows))
+    if a.json:
+        a.json.write_text(json.dumps([asdict(r) for r in rows], indent=1))
+        print(f"wrote {a.json}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

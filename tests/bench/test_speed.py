@@ -1,0 +1,52 @@
+"""polcam bench speed: the rows it reports are consistent with one another (no timed assertions)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from polcam.bench.speed import SpeedRow, _full_frame_raw, format_markdown, main, measure, run
+
+
+def test_run_pairs_exact_and_fast_on_the_same_input():
+    rows = run(sizes=(24, 32), scenes=("Bunny4",), exact_max=24, frame=False, isolate=False,
+               progress=False)
+    assert [(r.case, r.solver) for r in rows] == [
+        ("Bunny4 24x24", "exact"), ("Bunny4 24x24", "fast"), ("Bunny4 32x32", "fast")]
+    exact, fast, alone = rows
+    assert (exact.height, exact.width) == (24, 24) and exact.options == {"solver": "exact"}
+    assert fast.speedup == pytest.approx(exact.seconds / fast.seconds)
+    assert fast.psnr_delta == pytest.approx(fast.psnr - exact.psnr)
+    # the two solvers give the same answer here (docs/benchmarks.md: within 0.1 dB at 256)
+    assert abs(fast.psnr_delta) < 0.1 and fast.psnr_vs_exact > 50
+    assert np.isnan(alone.speedup) and np.isnan(alone.psnr_delta)
+    assert all(r.iterations > 0 and r.converged and r.tiles == 1 and r.peak_mb > 0 for r in rows)
+    md = format_markdown(rows)
+    assert md.count("\n") == 4 and "| Bunny4 24x24 | exact | 24 x 24 |" in md
+
+
+def test_measure_reports_the_options_it_ran_with(tmp_path):
+    got = measure({"kind": "scene", "scene": "Bunny1", "size": 24,
+                   "options": {"solver": "fast", "tile": 12, "overlap": 0, "workers": 1},
+                   "save": str(tmp_path / "d.npy")})
+    assert got["tiles"] == 4 and (got["height"], got["width"]) == (24, 24)
+    assert np.load(tmp_path / "d.npy").shape == (24, 24, 3)
+    assert set(got["timings"]) >= {"init", "ialm"}
+
+
+def test_main_runs_in_child_processes_and_writes_json(tmp_path, capsys):
+    out = tmp_path / "rows.json"
+    assert main(["--sizes", "24", "--exact-max", "0", "--no-frame", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())
+    assert [r["solver"] for r in rows] == ["fast"] and rows[0]["height"] == 24
+    assert "| Bunny4 24x24 | fast |" in capsys.readouterr().out
+    assert SpeedRow(**{**rows[0], "load": tuple(rows[0]["load"])}).case == "Bunny4 24x24"
+
+
+@pytest.mark.slow
+def test_full_frame_raw_is_a_sensor_frame():
+    raw = _full_frame_raw("Bunny5", 0)
+    assert raw.shape == (2048, 2448) and raw.dtype == np.float32
+    assert 0 <= raw.min() and raw.max() <= 1
