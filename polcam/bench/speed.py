@@ -16,11 +16,13 @@ Cases:
   resolution (1224 x 1024 per angle) and, with ``--full-resolution``, at full
   resolution; the seconds include bilinear demosaicing.
 
-Every case runs in a fresh Python process (so that peak memory is that case's)
-and is timed there around the work only.  Peak memory is the process's largest
-resident set plus, when the tiles ran in worker processes, the largest worker's
-times the number of workers (an upper bound of the total).  The machine is
-usually shared: the load average before and after each case is recorded.
+Every case runs in a fresh Python process and is timed there around the work
+only.  Peak memory is the largest proportional set size (PSS: shared pages
+split between the processes sharing them) of that process and its worker
+processes together, sampled every 0.1 s during the work (on Linux; elsewhere
+the process's largest resident set); it includes the interpreter and
+libraries (about 150 MB).  The machine is usually shared: the load average
+before and after each case is recorded.
 """
 
 from __future__ import annotations
@@ -76,6 +78,55 @@ def _full_frame_raw(scene_name: str, seed: int) -> np.ndarray:
     return mosaic(st, "imx250myr")
 
 
+def _pss_mb(pid: int) -> float:
+    """Proportional set size of a process and its descendants (Linux), MB; nan elsewhere.
+
+    Shared pages (a forked worker's copy-on-write view of its parent) count once,
+    split between the processes sharing them, so the sum is the memory in use.
+    """
+    total = 0.0
+    stack = [pid]
+    try:
+        while stack:
+            p = stack.pop()
+            with open(f"/proc/{p}/smaps_rollup") as fh:
+                for line in fh:
+                    if line.startswith("Pss:"):
+                        total += float(line.split()[1]) / 1024
+                        break
+            for task in os.listdir(f"/proc/{p}/task"):
+                with open(f"/proc/{p}/task/{task}/children") as fh:
+                    stack += [int(c) for c in fh.read().split()]
+    except (OSError, ValueError):
+        return float("nan") if total == 0 else total
+    return total
+
+
+class _PeakMemory:
+    """Largest :func:`_pss_mb` of this process tree, sampled every ``period`` seconds."""
+
+    def __init__(self, period: float = 0.1) -> None:
+        import threading
+
+        self.peak = _pss_mb(os.getpid())
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(period,), daemon=True)
+
+    def _run(self, period: float) -> None:
+        while not self._stop.wait(period):
+            v = _pss_mb(os.getpid())
+            if v == v:
+                self.peak = max(self.peak, v) if self.peak == self.peak else v
+
+    def __enter__(self) -> _PeakMemory:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
 def measure(case: dict[str, Any]) -> dict[str, Any]:
     """Run one case in this process and return its figures (used by the child processes).
 
@@ -98,21 +149,23 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
 
         r = render(scene(case["scene"]), size=case["size"], seed=case.get("seed", 0))
         stack, truth = r.stack, r.diffuse
-        t0 = time.perf_counter()
-        res = separate(stack, method="tensor", **opts)
-        seconds = time.perf_counter() - t0
+        del r
+        with _PeakMemory() as mem:
+            t0 = time.perf_counter()
+            res = separate(stack, method="tensor", **opts)
+            seconds = time.perf_counter() - t0
     else:
         from polcam.demosaic import demosaic
 
         raw = _full_frame_raw(case["scene"], case.get("seed", 0))
-        t0 = time.perf_counter()
-        stack = demosaic(raw, layout="imx250myr", method="bilinear", resolution=case["resolution"])
-        res = separate(stack, method="tensor", **opts)
-        seconds = time.perf_counter() - t0
-    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
-    workers = opts.get("workers") or os.cpu_count() or 1
-    peak = own + (kids * workers if res.info.get("tiles", 1) > 1 and kids > 0 else 0.0)
+        with _PeakMemory() as mem:
+            t0 = time.perf_counter()
+            stack = demosaic(raw, layout="imx250myr", method="bilinear", resolution=case["resolution"])
+            res = separate(stack, method="tensor", **opts)
+            seconds = time.perf_counter() - t0
+    peak = mem.peak
+    if peak != peak:                       # no /proc: the largest resident set (this process)
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     if case.get("save"):
         np.save(case["save"], res.diffuse)
     info = res.info

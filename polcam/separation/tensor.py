@@ -791,9 +791,8 @@ def ialm_fast(D: np.ndarray, *, tau: np.ndarray | None, lam: float, gamma: float
                 thr = wb[c] * inv_mu
                 np.clip(v_, -thr, thr, out=t_)
                 np.subtract(v_, t_, out=S[c])
-                if g > 0:
-                    if chunked_project:
-                        project(l_, out=Q[c])
+                if g > 0 and chunked_project:
+                    project(l_, out=Q[c])
                 # Y += mu (D - L - S)
                 np.subtract(D[c], l_, out=t_)
                 t_ -= S[c]
@@ -941,6 +940,9 @@ def _map_processes(fn: Callable[[Any], Any], jobs: Any, workers: int) -> list[An
     import sys
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
+    # fork: the workers share this process's pages (copy on write: its arrays are not
+    # duplicated) and need no main-module guard in the caller's script; from Python 3.12,
+    # which warns about forking a process with threads (BLAS starts some), forkserver
     method = "fork" if sys.version_info < (3, 12) else "forkserver"
     if method not in multiprocessing.get_all_start_methods():
         method = "spawn"
