@@ -35,7 +35,8 @@ Solvers
     (randomized subspace iteration, Halko, Martinsson & Tropp, SIAM Review
     53(2), 2011, Alg. 4.4, warm-started with the previous call's subspace); the
     subspace grows until it holds ``oversample`` more directions than the kept
-    rank.  Otherwise ``G`` is decomposed whole (LAPACK syevd/heevd).  The slices
+    rank.  Otherwise ``G`` is formed (herk for complex slices) and decomposed
+    whole (LAPACK syevd; heevd, or heevr from size 512).  The slices
     of the 0th and (for even n3) the n3/2-th frequency are real, so their
     arithmetic is real.  :class:`FastTSVT` keeps the per-slice state (subspace,
     predicted rank) between calls, as the IALM iterations need; :func:`tsvt`

@@ -34,6 +34,15 @@ as implemented and every departure from the paper):
    (eqs. 5-9 with the corrected L update, DESIGN.md section 4).
 8. Diffuse = mean over the four angle blocks of representation 1 of L, clipped
    to [0, input mean]; specular = input mean - diffuse (the dispatcher).
+
+Solvers: ``solver="exact"`` (:func:`ialm` with a full SVD of every Fourier
+slice) is the reference; ``solver="fast"`` (the default: :func:`ialm_fast`,
+float32, Gram eigenpairs on warm-started randomized subspaces, the shared
+initial diffuse, and above :data:`AUTO_UNTILED_PIXELS` pixels overlapping
+tiles in worker processes, :func:`blend`) gives the same diffuse layer within
+0.04 dB of PSNR on the synthetic scenes at 256 x 256, 20 times faster
+(docs/algorithm.md, section 4, "Fast solver"; docs/benchmarks.md); ``device=``
+runs it on PyTorch (:mod:`polcam.separation._torch`).
 """
 
 from __future__ import annotations
@@ -47,7 +56,6 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
 from scipy.sparse.linalg import svds
 from threadpoolctl import threadpool_limits
 
@@ -82,6 +90,9 @@ __all__ = [
     "FAST_TOL",
     "AUTO_UNTILED_PIXELS",
     "AUTO_TILE",
+    "DEVICE_BATCH",
+    "MAX_AUTO_WORKERS",
+    "INIT_PROCESS_PIXELS",
 ]
 
 REFERENCE = (
@@ -135,6 +146,9 @@ AUTO_TILE = 64
 DEVICE_BATCH = 64
 #: Most worker processes chosen by ``workers=None`` (each holds a few hundred MB at most).
 MAX_AUTO_WORKERS = 8
+#: Largest image whose initial diffuse runs in worker processes (the 1224 x 1024 cell-resolution
+#: frame does; a 2448 x 2048 full-resolution one runs in this process to bound memory).
+INIT_PROCESS_PIXELS = 2_500_000
 
 
 # ---------------------------------------------------------------------------
@@ -1137,9 +1151,11 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     # (half the memory of a full frame; Yang'10 computes in float64 either way)
     single = opt["solver"] == "fast" and opt["precision"] == "float32"
     xw = x.astype(np.float32) if single else x
+    del x, chro
     shared = opt["shared_init"] if opt["shared_init"] is not None else opt["solver"] == "fast"
     # worker processes only where the runs are long enough to pay for starting them
-    init_workers = workers if h * w >= 256 * 256 else 1
+    # (and not beyond INIT_PROCESS_PIXELS: a Yang'10 run on a 5 Mpixel image held ~1.4 GB)
+    init_workers = workers if 256 * 256 <= h * w <= INIT_PROCESS_PIXELS else 1
     if shared:
         # 5'. the initial diffuse of the four angle images, moved like the representations:
         # Yang'10 filters with a spatial sigma of a quarter of the image, so moving pixels
@@ -1155,7 +1171,7 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
         t = time.perf_counter()
         d0 = initial_diffuse(reps, init=opt["init"], workers=init_workers)
         del reps
-    del x, xw, chro, offsets
+    del xw, offsets
     timings["init"] = time.perf_counter() - t
 
     # 6-7. tensor and IALM, per tile
