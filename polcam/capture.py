@@ -24,6 +24,15 @@ rename; the sidecar first, so every frame file on disk has its sidecar), and
 camera sent them, in the pixel format's packing), ``tiff`` (uncompressed),
 ``npy``, ``png`` (lossless but ~90 ms a 5 MP frame: too slow for camera rate).
 
+Calibration (``--calibration FILE``, ``run_capture(calibration=...)``): loaded
+once; the first frame is checked against it (size, layout, camera, ROI,
+mirroring, and the exposure, gain and bit depth of its dark) before anything is
+saved, and a mismatch stops the capture with a ``CalibrationError``.  The live
+view (maps and separation) is computed from the corrected mosaic
+(``apply_calibration(..., polarimetric="mosaic")``); the saved frames, their
+sidecars and the ``/camera/raw`` view stay exactly as the camera sent them.
+The summary records the calibration file and its SHA-256.
+
 Stopping: ``--frames N``, ``--duration S``, the end of a replay folder, or
 SIGINT / SIGTERM: acquisition stops, queued frames are written, the summary
 (frames good, incomplete, dropped, saved, ...) is printed and written.  A
@@ -46,7 +55,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -56,18 +65,26 @@ from polcam.errors import CameraUnavailableError, LayoutError, MethodError, Polc
 from polcam.frame import Frame
 from polcam.mosaic import Layout
 
+if TYPE_CHECKING:
+    from polcam.calibration.store import Calibration
+
 __all__ = [
+    "CAMERA_SETTINGS",
     "SAVE_FORMATS",
     "FrameSaver",
     "StopRequest",
     "LiveMaps",
     "LiveProcessor",
+    "add_camera_arguments",
     "add_capture_parser",
+    "camera_options",
     "cmd_capture",
+    "configure_camera",
     "frame_name",
     "live_maps",
     "main",
     "run_capture",
+    "write_captured_frame",
 ]
 
 #: ``--format`` choices and their file extensions.
@@ -190,11 +207,15 @@ def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
     Parameters
     ----------
     mosaic
-        (H, W) uint8 or uint16 raw counts, H and W even.
+        (H, W) raw counts, H and W even: uint8 or uint16 as the camera sent
+        them, or float32 / float64 (a corrected mosaic, e.g.
+        :func:`polcam.calibration.apply_calibration`'s: counts above the dark,
+        possibly negative by noise; float64 is converted to float32).
     layout
         Layout of the mosaic.
     black_level, white_level
-        Counts of black and saturation (white default: the dtype's maximum).
+        Counts of black and saturation (white default: the integer dtype's
+        maximum; a float mosaic needs it).
 
     Returns
     -------
@@ -204,14 +225,20 @@ def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
     Raises
     ------
     LayoutError
-        A mosaic that is not 2-D uint8/uint16 with even sizes of at least
-        two layout periods, or levels with white <= black.
+        A mosaic that is not 2-D uint8/uint16/float with even sizes of at
+        least two layout periods, a float mosaic without ``white_level``, or
+        levels with white <= black.
     """
-    if mosaic.ndim != 2 or mosaic.dtype not in (np.uint8, np.uint16):
-        raise LayoutError(f"mosaic of shape {mosaic.shape} and dtype {mosaic.dtype}: expected 2-D uint8/uint16")
+    if mosaic.ndim != 2 or mosaic.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        raise LayoutError(f"mosaic of shape {mosaic.shape} and dtype {mosaic.dtype}: "
+                          "expected 2-D uint8/uint16 counts (or float32 corrected counts)")
     h, w = mosaic.shape
     if h % 2 or w % 2 or h < 2 * layout.period or w < 2 * layout.period:
         raise LayoutError(f"mosaic of {w}x{h} pixels: expected even sizes of at least {2 * layout.period}")
+    if mosaic.dtype.kind == "f":
+        if white_level is None:
+            raise LayoutError(f"{mosaic.dtype} mosaic without a white level: expected white_level in counts")
+        mosaic = np.asarray(mosaic, dtype=np.float32)
     white = float(np.iinfo(mosaic.dtype).max) if white_level is None else float(white_level)
     black = float(black_level)
     span = white - black
@@ -245,20 +272,45 @@ def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
 # saving
 # ---------------------------------------------------------------------------
 
-def _write_frame_file(path: Path, frame: Frame) -> None:
-    """Write one frame and its sidecar atomically (raw dumps straight from the camera's bytes)."""
+def write_captured_frame(path: Path, frame: Frame, *, extra: dict[str, Any] | None = None) -> Path:
+    """Write one frame and its sidecar atomically, raw dumps straight from the camera's bytes.
+
+    Parameters
+    ----------
+    path
+        Target file; its extension picks the container (:func:`polcam.io.write_frame`).
+        A ``.raw`` target of a frame that carries the camera's bytes
+        (``payload``) gets exactly those bytes.
+    frame
+        The frame, uint8/uint16 counts as the camera sent them.
+    extra
+        Sidecar keys to add to the frame's own (e.g. ``polarizer_deg``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    FrameWriteError
+        An unwritable target or a frame that cannot be stored losslessly.
+    """
+    from polcam.io import read_sidecar, write_frame
+    from polcam.io.atomic import atomic_write
+    from polcam.io.sidecar import write_sidecar
+
+    path = Path(path)
     payload = getattr(frame, "payload", None)
     if path.suffix == ".raw" and payload is not None:
-        from polcam.io.atomic import atomic_write
-        from polcam.io.sidecar import write_sidecar
-
-        write_sidecar(path, frame.sidecar())  # first: a frame file never lacks its sidecar
+        write_sidecar(path, {**frame.sidecar(), **(extra or {})})  # first: a frame file never lacks its sidecar
         with atomic_write(path, "wb") as fh:
             fh.write(payload)
-        return
-    from polcam.io import write_frame
-
+        return path
     write_frame(path, frame)
+    if extra:
+        write_sidecar(path, {**(read_sidecar(path) or {}), **extra})
+    return path
 
 
 class FrameSaver:
@@ -311,7 +363,7 @@ class FrameSaver:
             path = self.out / f"{frame_name(index)}{self.ext}"
             t0 = time.perf_counter()
             try:
-                _write_frame_file(path, frame)
+                write_captured_frame(path, frame)
             except (PolcamError, OSError) as exc:
                 with self._lock:
                     self.failed.append({"file": path.name, "error": str(exc)})
@@ -398,12 +450,20 @@ class LiveProcessor:
         Live threads; each takes the newest frame when it is free, so with
         two a second frame is processed while the first one is still being
         logged (OpenCV and Rerun release the GIL for their heavy parts).
+    calibration
+        A calibration of this camera, or ``None``.  The maps and the
+        separation are computed from the corrected mosaic
+        (:func:`polcam.calibration.apply_calibration`: dark, flat, defective
+        pixels and the per-super-pixel polarimetric correction); the raw
+        mosaic logged to ``/camera/raw`` stays as the camera sent it.
     """
 
     def __init__(self, layout: Layout, *, sink: Any = None, separate: str | None = None,
-                 counters: _Counters | None = None, workers: int = 2) -> None:
+                 counters: _Counters | None = None, workers: int = 2,
+                 calibration: Calibration | None = None) -> None:
         self.layout = layout
         self.sink = sink
+        self.calibration = calibration
         self.method = separate
         self.counters = counters or _Counters()
         self.processed = 0
@@ -460,13 +520,30 @@ class LiveProcessor:
                 self.seconds += time.perf_counter() - t0
                 self.processed += 1
 
+    def corrected(self, frame: Frame) -> Frame:
+        """The frame the live view computes from: ``frame`` itself, or its calibrated mosaic.
+
+        Raises
+        ------
+        CalibrationError
+            The frame does not fit the calibration (size, layout, camera, ROI,
+            mirroring; exposure, gain or bit depth of a dark).
+        """
+        if self.calibration is None:
+            return frame
+        from polcam.calibration import apply_calibration
+        from polcam.camera.replay import as_recorded
+
+        return apply_calibration(as_recorded(frame), self.calibration, polarimetric="mosaic")
+
     def _process(self, index: int, frame: Frame) -> None:
         ts = frame.metadata.get("timestamp_ns")
-        maps = live_maps(frame.mosaic, self.layout, black_level=frame.black_level,
-                         white_level=frame.white_level)
+        view = self.corrected(frame)
+        maps = live_maps(view.mosaic, self.layout, black_level=view.black_level,
+                         white_level=view.white_level)
         sink = self.sink
         if sink is not None:
-            sink.log_raw(index, ts, frame.mosaic, bit_depth=frame.bit_depth)
+            sink.log_raw(index, ts, frame.mosaic, bit_depth=frame.bit_depth)  # raw is raw
             sink.log_polarization(index, ts, ic=maps.ic, dolp=maps.dolp, aolp=maps.aolp, scale=maps.scale)
         if self.method == "imin":
             with self._lock:
@@ -477,7 +554,7 @@ class LiveProcessor:
             with self._sep_lock:
                 if self._sep_pending is not None:  # replaced by a newer frame before it started
                     self.separations_skipped += 1
-                self._sep_pending = (index, frame)
+                self._sep_pending = (index, view)
                 self._sep_wake.notify()
         self._stats(index, ts)
 
@@ -544,6 +621,44 @@ class LiveProcessor:
 # the capture loop
 # ---------------------------------------------------------------------------
 
+def _check_calibration(calibration: Calibration, camera: Camera) -> tuple[str | None, str | None]:
+    """Refuse a calibration of another layout than the camera sends; (file, SHA-256) to record.
+
+    The per-cell correction matrices are built here, once, so the live view
+    does not wait for them on its first frame.
+    """
+    from polcam.calibration import CalibrationError, apply_calibration
+    from polcam.process import sha256_file
+
+    where = f"calibration {calibration.source}" if calibration.source else "the calibration"
+    if camera.layout is not None and camera.layout != calibration.layout:
+        raise CalibrationError(f"layout mismatch: camera {camera.camera_id} sends layout {camera.layout}, "
+                               f"{where} is for {calibration.layout}")
+    if calibration.has("polarizer"):
+        apply_calibration(np.zeros(calibration.shape, dtype=np.uint16), calibration, check_settings=False)
+    if calibration.source is None:
+        return None, None
+    try:
+        digest = sha256_file(calibration.source)
+    except OSError as exc:
+        raise CalibrationError(f"cannot read the calibration file to hash it: {exc.strerror}",
+                               path=calibration.source) from exc
+    return str(calibration.source), digest
+
+
+def _refusal(calibration: Calibration, frame: Frame, camera_id: str) -> PolcamError | None:
+    """The error that stops a capture whose first frame does not fit the calibration, or ``None``."""
+    from polcam.calibration import CalibrationError
+    from polcam.camera.replay import as_recorded
+
+    try:
+        calibration.check_frame(as_recorded(frame))
+    except CalibrationError as exc:
+        return CalibrationError(f"capture from camera {camera_id} refused, nothing saved: the first frame "
+                                f"does not fit the calibration: {exc}")
+    return None
+
+
 class StopRequest(threading.Event):
     """An event that also says why the capture should stop (``reason``)."""
 
@@ -578,6 +693,7 @@ def run_capture(
     view_scale: float = 0.5,
     live_workers: int = 2,
     progress: Callable[[dict[str, Any]], None] | None = None,
+    calibration: Calibration | None = None,
 ) -> dict[str, Any]:
     """Capture from an open, configured camera until a stop condition; return the summary.
 
@@ -616,6 +732,12 @@ def run_capture(
         Threads of the live view (each processes the newest frame when free).
     progress
         Called about once a second with the running counters.
+    calibration
+        A calibration of this camera (:func:`polcam.calibration.load_calibration`),
+        or ``None``.  The first frame is checked against it before anything
+        is saved; the live view (maps and separation) is computed from the
+        corrected mosaic, while the saved frames stay exactly as the camera
+        sent them.
 
     Returns
     -------
@@ -625,10 +747,18 @@ def run_capture(
         ``frames_saved``, ``frames_save_failed``, ``frames_unsaved``,
         ``frames_processed``, ``frames_skipped``, ``separations``,
         ``separations_skipped``, ``duration_s``, ``fps``, ``stop_reason``,
-        ``files`` and the camera's ``stream`` statistics.
+        ``files``, the camera's ``stream`` statistics, and ``calibration``
+        / ``calibration_sha256`` (the calibration file and its SHA-256, as
+        ``polcam process`` records them; ``None`` without one).
 
     Raises
     ------
+    CalibrationError
+        The calibration does not fit the layout the camera sends, or its
+        first frame (size, layout, camera id, ROI, mirroring; with a dark,
+        exposure, gain or bit depth).  The capture stops before any frame is
+        saved and no summary is written (an output folder or ``.rrd`` file
+        it created is removed again).
     LayoutError
         Live processing or separation requested but the frames have no layout.
     MethodError
@@ -660,10 +790,16 @@ def run_capture(
                 f"separation method {separate!r} needs a colour sensor; camera layout is {layout}; "
                 f"for mono use one of {', '.join(m for m in methods() if method_spec(m).mono)} or none"
             )
+    cal_file: str | None = None
+    cal_sha: str | None = None
+    if calibration is not None:
+        cal_file, cal_sha = _check_calibration(calibration, camera)
     first_index = 0
     stale = 0
+    created_out = False
     if out is not None:
         out = Path(out)
+        created_out = not out.exists()
         out.mkdir(parents=True, exist_ok=True)
         stale = _clean_stale(out)
         existing = _existing_frames(out)
@@ -676,6 +812,9 @@ def run_capture(
 
     counters = _Counters()
     sink = None
+    new_rrd = None  # a recording file this capture creates (removed again if the calibration refuses)
+    if rerun is not None and str(rerun) not in ("spawn", "serve") and not Path(rerun).exists():
+        new_rrd = Path(rerun)
     if rerun is not None:  # before any thread starts: a viewer that cannot start is a plain error
         from polcam.sinks.rerun import RerunSink
 
@@ -688,9 +827,11 @@ def run_capture(
     live: LiveProcessor | None = None
     if live_wanted:
         assert layout is not None
-        live = LiveProcessor(layout, sink=sink, separate=separate, counters=counters, workers=live_workers)
+        live = LiveProcessor(layout, sink=sink, separate=separate, counters=counters, workers=live_workers,
+                             calibration=calibration)
 
     received = 0
+    refused: PolcamError | None = None
     reason = "running"
     error: str | None = None
     arrivals: deque[float] = deque()
@@ -730,6 +871,11 @@ def run_capture(
             else:
                 outstanding_trigger = False
                 last_frame = now
+                if calibration is not None and received == 0:
+                    refused = _refusal(calibration, frame, camera.camera_id)
+                    if refused is not None:  # nothing saved or shown yet
+                        reason = "calibration refused"
+                        break
                 index = first_index + received
                 received += 1
                 arrivals.append(now)
@@ -761,6 +907,14 @@ def run_capture(
         if sink is not None:
             sink.close()
 
+    if refused is not None:
+        for leftover, remove in ((out if created_out else None, Path.rmdir), (new_rrd, Path.unlink)):
+            if leftover is not None:
+                try:
+                    remove(leftover)  # the folder is empty, the recording holds no frame
+                except OSError:
+                    pass
+        raise refused
     st = camera.stats()
     elapsed = max(t_end - t_start, 1e-9)
     if live is not None and live.error is not None:
@@ -796,6 +950,9 @@ def run_capture(
         "out": None if out is None else str(out),
         "rerun": None if rerun is None else str(rerun),
         "stale_temporaries_removed": stale,
+        "calibration": cal_file,
+        "calibration_sha256": cal_sha,
+        "calibration_stages": calibration.applied_stages if calibration is not None else None,
         "save_errors": saver.failed if saver else [],
         "files": sorted(saver.saved) if saver else [],
     }
@@ -821,8 +978,9 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
                     "them; Fake_1 is Aravis' simulated camera) or from a folder of raw frames "
                     "(--device replay:DIR). Every good frame is saved losslessly with its JSON sidecar, "
                     "atomically; the newest frame is processed live (S0, DoLP, AoLP, Imin at the "
-                    "polarizer-cell resolution, and the chosen separation) and shown in Rerun. "
-                    "Ctrl-C or SIGTERM stops cleanly and writes OUT/summary.json.",
+                    "polarizer-cell resolution, and the chosen separation) and shown in Rerun; with "
+                    "--calibration the live view is computed from the corrected mosaic while the saved "
+                    "frames stay raw. Ctrl-C or SIGTERM stops cleanly and writes OUT/summary.json.",
     )
     c.add_argument("--device", required=True, help="camera id, serial or address, or replay:DIR")
     stop = c.add_mutually_exclusive_group()
@@ -834,19 +992,11 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="frame files: raw (the camera's bytes, default), tiff (uncompressed), npy, "
                         "png (lossless, slow: ~90 ms a 5 MP frame)")
     c.add_argument("--append", action="store_true", help="allow an --out folder that holds frames already")
-    c.add_argument("--pixel-format", help="GenICam PixelFormat (`polcam formats` lists what polcam reads)")
-    c.add_argument("--layout", help="sensor layout for plain Mono/Bayer formats (imx250mzr, imx250myr, "
-                                    "mono:A,B,C,D, color:A,B,C,D:BAYER)")
-    c.add_argument("--exposure", type=float, metavar="US", help="exposure time, microseconds")
-    c.add_argument("--gain", type=float, metavar="DB", help="gain, dB")
-    c.add_argument("--roi", type=int, nargs=4, metavar=("X", "Y", "W", "H"),
-                   help="region of interest on the sensor (aligned down to whole polarizer cells)")
-    c.add_argument("--frame-rate", type=float, metavar="FPS",
-                   help="frame rate (replay: playback rate; default as fast as read, lossless)")
-    c.add_argument("--trigger", help=f"{' | '.join(TRIGGER_MODES)} | a line (Line0, ...); default: "
-                                     "as the camera is")
-    c.add_argument("--reverse-x", action="store_true", default=None, help="mirror the image left-right")
-    c.add_argument("--reverse-y", action="store_true", default=None, help="mirror the image top-bottom")
+    add_camera_arguments(c)
+    c.add_argument("--calibration", type=Path, metavar="FILE",
+                   help="calibration file (polcam calibrate) of this camera at these settings: the first "
+                        "frame is checked against it, the live view (S0, DoLP, AoLP, layers) uses the "
+                        "corrected mosaic; saved frames stay raw. summary.json records the file and its SHA-256")
     c.add_argument("--separate", default="imin",
                    help="separation method for the live layers, or none (default imin: every frame; "
                         "slower methods run on the newest frame whenever the last run is done)")
@@ -858,15 +1008,6 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="size of the maps in the Rerun view relative to the polarizer-cell resolution "
                         "(default 0.5: 612x512 for a 5 MP sensor; 1 for full cell resolution)")
     c.add_argument("--live-workers", type=int, default=2, help="live processing threads (default 2)")
-    c.add_argument("--timeout", type=float, default=10.0,
-                   help="give up when no frame arrives for S seconds (default 10)")
-    c.add_argument("--loop", action="store_true", help="replay: start over after the last file")
-    c.add_argument("--buffers", type=int, default=16, help="Aravis buffer pool size (default 16)")
-    c.add_argument("--packet-size", default="1500",
-                   help="GigE packet size in bytes (default 1500; 8192/9000 with jumbo frames end to end; "
-                        "'auto': Aravis probes the largest size the path carries)")
-    c.add_argument("--socket-buffer", type=int, metavar="BYTES",
-                   help="GigE receive socket buffer (default: Aravis' automatic size)")
     c.add_argument("--save-workers", type=int, default=4,
                    help="writer threads (default 4: writes and fsync overlap)")
     c.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -874,7 +1015,63 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
     return c
 
 
-def _camera_options(args: argparse.Namespace) -> dict[str, Any]:
+def add_camera_arguments(parser: Any, *, layout: bool = True) -> None:
+    """Add the camera options ``polcam capture`` and ``polcam calibrate --device`` share.
+
+    Settings (``--pixel-format``, ``--layout``, ``--exposure``, ``--gain``,
+    ``--roi``, ``--frame-rate``, ``--trigger``, ``--reverse-x``,
+    ``--reverse-y``) and the connection (``--timeout``, ``--loop``,
+    ``--buffers``, ``--packet-size``, ``--socket-buffer``); read them back
+    with :func:`camera_options` and :func:`configure_camera`.
+
+    Parameters
+    ----------
+    parser
+        The command's ``argparse.ArgumentParser``, or an argument group of it.
+    layout
+        Add ``--layout`` too (a command that has its own leaves it out).
+    """
+    p = parser
+    p.add_argument("--pixel-format", help="GenICam PixelFormat (`polcam formats` lists what polcam reads)")
+    if layout:
+        p.add_argument("--layout", help="sensor layout for plain Mono/Bayer formats (imx250mzr, imx250myr, "
+                                        "mono:A,B,C,D, color:A,B,C,D:BAYER)")
+    p.add_argument("--exposure", type=float, metavar="US", help="exposure time, microseconds")
+    p.add_argument("--gain", type=float, metavar="DB", help="gain, dB")
+    p.add_argument("--roi", type=int, nargs=4, metavar=("X", "Y", "W", "H"),
+                   help="region of interest on the sensor (aligned down to whole polarizer cells)")
+    p.add_argument("--frame-rate", type=float, metavar="FPS",
+                   help="frame rate (replay: playback rate; default as fast as read, lossless)")
+    p.add_argument("--trigger", help=f"{' | '.join(TRIGGER_MODES)} | a line (Line0, ...); default: "
+                                     "as the camera is")
+    p.add_argument("--reverse-x", action="store_true", default=None, help="mirror the image left-right")
+    p.add_argument("--reverse-y", action="store_true", default=None, help="mirror the image top-bottom")
+    p.add_argument("--timeout", type=float, default=10.0,
+                   help="give up when no frame arrives for S seconds (default 10)")
+    p.add_argument("--loop", action="store_true", help="replay: start over after the last file")
+    p.add_argument("--buffers", type=int, default=16, help="Aravis buffer pool size (default 16)")
+    p.add_argument("--packet-size", default="1500",
+                   help="GigE packet size in bytes (default 1500; 8192/9000 with jumbo frames end to end; "
+                        "'auto': Aravis probes the largest size the path carries)")
+    p.add_argument("--socket-buffer", type=int, metavar="BYTES",
+                   help="GigE receive socket buffer (default: Aravis' automatic size)")
+
+
+#: Destinations of the camera settings :func:`add_camera_arguments` adds, with their flags.
+CAMERA_SETTINGS: dict[str, str] = {
+    "pixel_format": "--pixel-format", "exposure": "--exposure", "gain": "--gain", "roi": "--roi",
+    "frame_rate": "--frame-rate", "trigger": "--trigger", "reverse_x": "--reverse-x", "reverse_y": "--reverse-y",
+}
+
+
+def camera_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Keyword arguments of :func:`polcam.camera.open_camera` from the parsed camera options.
+
+    Raises
+    ------
+    CameraSettingError
+        A ``--packet-size`` that is neither a number nor ``auto``.
+    """
     if str(args.device).startswith("replay:"):
         return {"frame_rate": args.frame_rate, "loop": args.loop}
     opts: dict[str, Any] = {"n_buffers": args.buffers}
@@ -886,6 +1083,29 @@ def _camera_options(args: argparse.Namespace) -> dict[str, Any]:
     if args.socket_buffer is not None:
         opts["socket_buffer_bytes"] = args.socket_buffer
     return opts
+
+
+def configure_camera(camera: Camera, args: argparse.Namespace, *, quiet: bool = False) -> dict[str, Any]:
+    """Apply the parsed camera settings to an open camera; returns what it reports.
+
+    Settings the camera cannot change are listed in the result's ``ignored``
+    and, unless ``quiet``, named in a note on stderr.
+
+    Raises
+    ------
+    CameraSettingError, PixelFormatError, LayoutError
+        A setting the camera refuses (the message names it and the value).
+    """
+    settings = camera.configure(
+        pixel_format=args.pixel_format, layout=args.layout, exposure_us=args.exposure,
+        gain_db=args.gain, roi=tuple(args.roi) if args.roi else None,
+        frame_rate=args.frame_rate if not str(args.device).startswith("replay:") else None,
+        trigger=args.trigger, reverse_x=args.reverse_x, reverse_y=args.reverse_y,
+    )
+    if settings.get("ignored") and not quiet:
+        print(f"note: camera {camera.camera_id} cannot change {', '.join(settings['ignored'])}; ignored",
+              file=sys.stderr)
+    return settings
 
 
 def _print_summary(summary: dict[str, Any]) -> None:
@@ -919,21 +1139,21 @@ def cmd_capture(args: argparse.Namespace) -> int:
             abort.set()  # a second signal: do not wait for the frames still queued for writing
         stop.request(f"signal {signal.Signals(signum).name}")
 
+    calibration = None
+    if args.calibration is not None:  # loaded once, before the camera is touched
+        from polcam.calibration import load_calibration
+
+        calibration = load_calibration(args.calibration)
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        with open_camera(args.device, **_camera_options(args)) as cam:
-            settings = cam.configure(
-                pixel_format=args.pixel_format, layout=args.layout, exposure_us=args.exposure,
-                gain_db=args.gain, roi=tuple(args.roi) if args.roi else None,
-                frame_rate=args.frame_rate if not str(args.device).startswith("replay:") else None,
-                trigger=trigger, reverse_x=args.reverse_x, reverse_y=args.reverse_y,
-            )
-            if settings.get("ignored") and not args.quiet:
-                print(f"note: camera {cam.camera_id} cannot change {', '.join(settings['ignored'])}; "
-                      "ignored", file=sys.stderr)
+        with open_camera(args.device, **camera_options(args)) as cam:
+            settings = configure_camera(cam, args, quiet=args.quiet)
             if not args.quiet:
                 print(f"capturing from {cam.camera_id}: {settings.get('pixel_format')} "
                       f"layout {settings.get('layout')} -> {out if out else '(not saved)'}")
+                if calibration is not None:
+                    print(f"live view calibrated with {args.calibration} "
+                          f"({', '.join(calibration.applied_stages) or 'no stages'}); frames saved raw")
 
             def progress(p: dict[str, Any]) -> None:
                 if "message" in p:
@@ -949,7 +1169,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
                 software_trigger=trigger == "software", append=args.append,
                 save_workers=args.save_workers, raw_every=args.raw_every, view_scale=args.view_scale,
                 live_workers=args.live_workers,
-                progress=None if args.quiet else progress,
+                progress=None if args.quiet else progress, calibration=calibration,
             )
     finally:
         for s, h in previous.items():

@@ -306,7 +306,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.bench == "quality":
         from polcam.bench import quality
 
-        scores, stats = quality.run(scenes=args.scenes, methods=args.methods, size=args.size or 128,
+        scores, stats = quality.run(scenes=args.scenes, methods=args.methods, size=args.size,
                                     seed=args.seed)
         print(quality.format_table(scores))
         for f in quality.write_outputs(scores, stats, args.out or Path("bench-output") / "quality"):
@@ -315,12 +315,21 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.bench == "sihr":
         from polcam.bench import sihr
 
-        if args.data is None or not args.data.is_dir():
-            print("error: --data DIR (the shen2013 images and their *_gt.png) is required", file=sys.stderr)
+        if not args.data.is_dir():
+            print(f"error: --data {args.data}: not a folder (expected the shen2013 images and their *_gt.png)",
+                  file=sys.stderr)
             return 2
         rows = sihr.run(args.data, methods=args.methods)
         print(sihr.format_table(rows))
         return 0
+    if args.bench == "speed":
+        from polcam.bench import speed
+
+        return speed.run_args(args)
+    if args.bench == "calibration":
+        from polcam.calibration import bench as cal_bench
+
+        return cal_bench.run_args(args)
     raise AssertionError(args.bench)
 
 
@@ -442,20 +451,50 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--bit-depth", type=int, default=12, choices=(8, 12), help="raw mosaic bit depth")
     r.set_defaults(func=cmd_render)
 
-    b = sub.add_parser("bench", help="benchmarks (demosaic, sihr, quality)",
-                       description="demosaic: demosaicing quality (PSNR of I, S0, DoLP; AoLP error) and "
-                                   "speed against ground truth, beside polanalyser. sihr: the single-image "
-                                   "highlight-removal methods on the Shen 2013 images against the published "
-                                   "PSNR/SSIM table. quality: every separation method on the synthetic "
-                                   "scenes (PSNR, SSIM, whole image and object mask; CSV, Markdown, plot).")
-    b.add_argument("bench", choices=("demosaic", "sihr", "quality"))
-    b.add_argument("--data", type=Path, help="data folder (demosaic: a real colour stack 0_1.png..135_1.png; "
-                                             "sihr: the shen2013 folder)")
-    b.add_argument("--size", type=int, help="demosaic: size of the synthetic scenes")
-    b.add_argument("--seed", type=int, default=0, help="random seed of the synthetic scenes")
-    b.add_argument("--methods", nargs="+", help="sihr, quality: only these methods")
-    b.add_argument("--scenes", nargs="+", help="quality: only these scenes (default: all)")
-    b.add_argument("--out", type=Path, help="quality: output folder (default bench-output/quality)")
+    b = sub.add_parser("bench", help="benchmarks (demosaic, sihr, quality, speed, calibration)",
+                       description="Benchmarks that reproduce the tables of docs/benchmarks.md. demosaic: "
+                                   "demosaicing quality and speed against ground truth, beside polanalyser. "
+                                   "sihr: the single-image highlight-removal methods on the Shen 2013 images "
+                                   "against the published PSNR/SSIM table. quality: every separation method on "
+                                   "the synthetic scenes. speed: the tensor method's exact and fast solvers. "
+                                   "calibration: dark, flat and polarizer calibration on a synthetic imperfect "
+                                   "sensor.")
+    bsub = b.add_subparsers(dest="bench", required=True, metavar="BENCH")
+    bd = bsub.add_parser("demosaic", help="demosaicing quality and speed",
+                         description="Demosaicing quality (PSNR of I, S0, DoLP; AoLP error) and speed against "
+                                     "ground truth on synthetic scenes and a real colour stack, beside "
+                                     "polanalyser.")
+    bd.add_argument("--data", type=Path, help="a real colour stack folder (0_1.png .. 135_1.png)")
+    bd.add_argument("--size", type=int, help="size of the synthetic scenes")
+    bd.add_argument("--seed", type=int, default=0, help="random seed of the synthetic scenes (default 0)")
+    bs = bsub.add_parser("sihr", help="single-image highlight removal on the Shen 2013 images",
+                         description="PSNR/SSIM and seconds of the single-image methods on the Shen 2013 "
+                                     "images, beside the published table.")
+    bs.add_argument("--data", type=Path, required=True, help="the shen2013 folder (images and *_gt.png)")
+    bs.add_argument("--methods", nargs="+", help="only these methods")
+    bq = bsub.add_parser("quality", help="every separation method on the synthetic scenes",
+                         description="Every separation method on the synthetic scenes (PSNR, SSIM, whole image "
+                                     "and object mask; CSV, Markdown, plot), beside the paper's tables.")
+    bq.add_argument("--methods", nargs="+", help="only these methods")
+    bq.add_argument("--scenes", nargs="+", help="only these scenes (default: all)")
+    bq.add_argument("--size", type=int, default=128, help="scene side in pixels (default 128)")
+    bq.add_argument("--seed", type=int, default=0, help="random seed of the scenes (default 0)")
+    bq.add_argument("--out", type=Path, help="output folder (default bench-output/quality)")
+    from polcam.bench import speed as _speed
+    from polcam.calibration import bench as _cal_bench
+
+    bp = bsub.add_parser("speed", help="the tensor method's exact and fast solvers",
+                         description="The tensor method's exact and fast solvers on the same inputs: seconds, "
+                                     "speed ratio, PSNR difference, iterations and peak memory on synthetic "
+                                     "scenes, and the fast solver on a full 2448 x 2048 sensor frame from raw "
+                                     "to diffuse and specular (docs/benchmarks.md). Each case runs in a fresh "
+                                     "process.")
+    _speed.add_arguments(bp)
+    bc = bsub.add_parser("calibration", help="calibration on a synthetic imperfect sensor",
+                         description="Dark, flat and polarizer calibration of a synthetic imperfect sensor: "
+                                     "recovered maps, Stokes errors before and after, separation with and "
+                                     "without calibration (docs/benchmarks.md).")
+    _cal_bench.add_arguments(bc)
     b.set_defaults(func=cmd_bench)
     return p
 
@@ -474,6 +513,9 @@ def reference_markdown() -> str:
                  "`polcam COMMAND --help` prints the same.", "", "```", parser.format_help().rstrip(), "```"]
         for name, cmd in sub.choices.items():
             parts += ["", f"## polcam {name}", "", "```", cmd.format_help().rstrip(), "```"]
+            nested = [a for a in cmd._actions if isinstance(a, argparse._SubParsersAction)]
+            for sub_name, sub_cmd in (nested[0].choices.items() if nested else ()):
+                parts += ["", f"### polcam {name} {sub_name}", "", "```", sub_cmd.format_help().rstrip(), "```"]
         return "\n".join(parts) + "\n"
     finally:
         if old is None:

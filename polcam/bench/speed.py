@@ -43,7 +43,7 @@ import numpy as np
 
 from polcam.separation.tensor import AUTO_UNTILED_PIXELS
 
-__all__ = ["SpeedRow", "measure", "run", "format_markdown", "main"]
+__all__ = ["SpeedRow", "add_arguments", "format_markdown", "main", "measure", "run", "run_args"]
 
 
 @dataclass
@@ -310,23 +310,26 @@ def format_markdown(rows: Sequence[SpeedRow]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``polcam bench speed`` / ``python -m polcam.bench.speed``."""
-    p = argparse.ArgumentParser(prog="polcam bench speed", description=__doc__.splitlines()[0])
-    p.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512])
-    p.add_argument("--scenes", nargs="+", default=["Bunny4"])
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the options of ``polcam bench speed`` to a parser."""
+    p.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512],
+                   help="sides of the synthetic scenes (default 128 256 512)")
+    p.add_argument("--scenes", nargs="+", default=["Bunny4"], help="synthetic scenes (default Bunny4)")
     p.add_argument("--exact-max", type=int, default=256,
                    help="largest side the exact solver runs at (default 256)")
     p.add_argument("--no-frame", action="store_true", help="skip the full sensor frame")
     p.add_argument("--full-resolution", action="store_true",
                    help="also the full frame at full resolution (2448 x 2048 per angle)")
-    p.add_argument("--frame-scene", default="Bunny5")
+    p.add_argument("--frame-scene", default="Bunny5", help="scene rendered for the sensor frame (default Bunny5)")
     p.add_argument("--device", help="PyTorch device for the fast solver (default: numpy)")
     p.add_argument("--tol", type=float, help="stopping tolerance of the fast solver")
     p.add_argument("--workers", type=int, help="worker processes / threads (default: CPU count)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
     p.add_argument("--json", type=Path, help="also write the rows to this file")
-    a = p.parse_args(argv)
+
+
+def run_args(a: argparse.Namespace) -> int:
+    """Run ``polcam bench speed`` with parsed options; print the table."""
     options: dict[str, Any] = {}
     if a.device:
         options["device"] = a.device
@@ -340,9 +343,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                seed=a.seed)
     print(format_markdown(rows))
     if a.json:
-        a.json.write_text(json.dumps([asdict(r) for r in rows], indent=1))
+        from polcam.io.atomic import atomic_write
+
+        with atomic_write(a.json, "w") as fh:
+            json.dump([asdict(r) for r in rows], fh, indent=1)
         print(f"wrote {a.json}")
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m polcam.bench.speed`` (the same as ``polcam bench speed``)."""
+    p = argparse.ArgumentParser(prog="python -m polcam.bench.speed", description=__doc__.splitlines()[0])
+    add_arguments(p)
+    return run_args(p.parse_args(argv))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -59,8 +59,8 @@ from polcam.frame import Frame
 from polcam.stokes import aolp, dolp, stokes
 
 __all__ = [
-    "VARIANTS", "format_markdown", "make_calibration", "precision", "run", "separation_rows", "smooth_scene",
-    "stokes_errors",
+    "VARIANTS", "add_arguments", "format_markdown", "main", "make_calibration", "precision", "run", "run_args",
+    "separation_rows", "smooth_scene", "stokes_errors",
 ]
 
 VARIANTS: tuple[str, ...] = ("uncalibrated", "dark+flat", "mosaic", "stack", "ideal sensor")
@@ -397,11 +397,8 @@ def format_markdown(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m polcam.calibration bench``."""
-    p = argparse.ArgumentParser(prog="python -m polcam.calibration bench",
-                                description="Calibration benchmark on a synthetic imperfect sensor "
-                                            "(polcam/calibration/bench.py explains every number).")
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the options of ``polcam bench calibration`` to a parser."""
     p.add_argument("--layouts", nargs="+", default=["imx250mzr", "imx250myr"], help="sensor layouts")
     p.add_argument("--size", type=int, default=128, help="sensor side in pixels (default 128)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -414,7 +411,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="separation methods to score on a rendered scene (default: imin tensor; tensor runs "
                         "on colour layouts only; give the flag alone to skip)")
     p.add_argument("--json", type=Path, help="also write the raw figures to this JSON file")
-    args = p.parse_args(argv)
+
+
+def run_args(args: argparse.Namespace) -> int:
+    """Run the calibration benchmark with parsed options; print the tables."""
     t0 = time.perf_counter()
     result = run(layouts=args.layouts, size=args.size, seed=args.seed, dark_frames=args.dark_frames,
                  flat_frames=args.flat_frames, angles=args.angles, per_angle=args.per_angle,
@@ -427,3 +427,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         with atomic_write(args.json, "w") as fh:
             json.dump(result, fh, indent=2)
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m polcam.calibration bench`` (the same as ``polcam bench calibration``)."""
+    p = argparse.ArgumentParser(prog="python -m polcam.calibration bench",
+                                description="Calibration benchmark on a synthetic imperfect sensor "
+                                            "(polcam/calibration/bench.py explains every number).")
+    add_arguments(p)
+    return run_args(p.parse_args(argv))

@@ -26,7 +26,7 @@ from polcam.camera.base import (
     StreamStats,
     open_camera,
 )
-from polcam.camera.replay import ReplayCamera
+from polcam.camera.replay import ReplayCamera, as_recorded
 
 __all__ = [
     "AravisCamera",
@@ -40,6 +40,7 @@ __all__ = [
     "StreamStats",
     "TRIGGER_MODES",
     "aravis_available",
+    "as_recorded",
     "list_devices",
     "load_aravis",
     "open_camera",

@@ -279,6 +279,20 @@ class Camera(abc.ABC):
         """Vendor, model, serial, protocol ... (for the capture summary)."""
         return {"id": self.camera_id}
 
+    @property
+    def waits_for_reader(self) -> bool:
+        """True when the source holds every frame until it is read (a recording played
+        losslessly: the replay camera without a frame rate).
+
+        Such a source never lets frames go stale while the reader pauses, and
+        stopping and starting it plays the recording again from the start.  A
+        live camera (``False``) keeps exposing while nobody reads: a reader
+        that needs frames taken after some moment (``polcam calibrate
+        polarizer`` after each turn of the polarizer) stops acquisition
+        meanwhile and starts it again.
+        """
+        return False
+
     # ---------------------------------------------------------------- running
     def start(self) -> None:
         """Start acquisition (frames begin to fill the queue)."""

@@ -25,6 +25,7 @@ frame (status ``unreadable``) and playback goes on.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from pathlib import Path
@@ -32,9 +33,42 @@ from typing import Any
 
 from polcam.camera.base import Camera, CameraNotFoundError, CameraSettingError, CapturedFrame
 from polcam.errors import PixelFormatError, PolcamError
+from polcam.frame import Frame
 from polcam.mosaic import Layout, parse_layout
 
-__all__ = ["ReplayCamera"]
+__all__ = ["ReplayCamera", "as_recorded"]
+
+
+def as_recorded(frame: Frame) -> Frame:
+    """A frame with the camera id of the recording it was replayed from.
+
+    A replayed frame carries the replay's ``camera_id`` (``replay:DIR``) and
+    keeps its file's own as ``source_camera_id``.  What a calibration is
+    checked against (and records) is the camera that exposed the frame, so
+    this returns a frame sharing the mosaic (and payload) whose
+    ``camera_id`` is the file's, or absent when the file had none.  Frames
+    that were not replayed are returned as they are.
+
+    Parameters
+    ----------
+    frame
+        Any frame (a :class:`~polcam.camera.base.CapturedFrame` keeps its type).
+
+    Returns
+    -------
+    Frame
+        ``frame`` itself, or a shallow copy with the metadata changed.
+    """
+    meta = frame.metadata
+    cam = meta.get("camera_id")
+    if not (isinstance(cam, str) and cam.startswith("replay:") and "source" in meta):
+        return frame
+    new = dict(meta)
+    if new.get("source_camera_id") is not None:
+        new["camera_id"] = new["source_camera_id"]
+    else:
+        new.pop("camera_id", None)
+    return dataclasses.replace(frame, metadata=new)
 
 
 class ReplayCamera(Camera):
@@ -128,6 +162,11 @@ class ReplayCamera(Camera):
             "pixel_format": meta.get("pixel_format"),
             "layout": None if self._layout is None else self._layout.short_name,
         }
+
+    @property
+    def waits_for_reader(self) -> bool:
+        """True without a frame rate: every file waits in the queue until it is read."""
+        return self.frame_rate is None
 
     # ------------------------------------------------------------- configure
     def configure(

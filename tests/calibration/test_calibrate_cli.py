@@ -1,9 +1,17 @@
-"""Tests of polcam.calibration.cli: ``polcam calibrate dark|flat|polarizer`` on frames in folders."""
+"""Tests of polcam.calibration.cli: ``polcam calibrate dark|flat|polarizer`` on frames in folders and on
+frames grabbed live from a camera (the replay camera playing those folders, and Aravis' Fake camera)."""
 
 from __future__ import annotations
 
 import argparse
+import io
 import json
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +19,8 @@ import pytest
 from polcam.calibration.cli import add_calibrate_parser, angle_from_name, angle_of, main
 from polcam.calibration.simulate import ImperfectSensor
 from polcam.calibration.store import CalibrationError, load_calibration
-from polcam.io import write_frame
+from polcam.camera import aravis_available
+from polcam.io import read_frame, write_frame
 from polcam.io.sidecar import read_sidecar, sidecar_path, write_sidecar
 
 SIZE = 16
@@ -139,11 +148,14 @@ def test_flat_with_a_dark_of_another_size_is_refused(folders, tmp_path):
              "--calibration", str(tmp_path / "dark.npz")])
 
 
-def test_help_says_frames_come_from_files_not_a_live_camera(capsys):
+def test_help_names_both_sources_and_the_camera_options(capsys):
     with pytest.raises(SystemExit):
         parser().parse_args(["calibrate", "polarizer", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert "not part of this command yet" in text and "polarizer_deg" in text and "--polarizer-dolp" in text
+    assert "Give either FRAMES" in text and "--device ID --frames N" in text and "--keep DIR" in text
+    assert "polarizer_deg" in text and "--polarizer-dolp" in text and "--angles" in text
+    for flag in ("--pixel-format", "--exposure", "--gain", "--roi", "--timeout", "--packet-size"):
+        assert flag in text
 
 
 @pytest.mark.parametrize(("stem", "angle"), [
@@ -159,3 +171,221 @@ def test_json_output_is_valid(folders, tmp_path, capsys):
     assert run(["calibrate", "dark", str(root / "dark"), "-o", str(tmp_path / "d.npz"), "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["stages"]["dark"]["frames"] == 8
+
+
+# ---------------------------------------------------------------------------
+# frames grabbed live from a camera (--device): the replay camera and Aravis' Fake camera
+# ---------------------------------------------------------------------------
+
+ANGLES = "0,22.5,45,67.5,90,112.5,135,157.5"
+
+
+def _maps_equal(a, b) -> None:
+    assert sorted(a.maps) == sorted(b.maps)
+    for name in a.maps:
+        np.testing.assert_array_equal(a.maps[name], b.maps[name], err_msg=name)
+
+
+def _chain(root, tmp_path, tag, live: bool, monkeypatch=None, keep=None) -> list[Path]:
+    """dark -> flat -> polarizer from the folders, or live from replay cameras playing them."""
+    out = [tmp_path / f"{tag}-{stage}.npz" for stage in ("dark", "flat", "pol")]
+    base: list[str] = []
+    for stage, folder, n, target in (("dark", "dark", "8", out[0]), ("flat", "flat", "8", out[1]),
+                                      ("polarizer", "pol", "2", out[2])):
+        if live:
+            src = ["--device", f"replay:{root / folder}", "--frames", n]
+            if stage == "polarizer":
+                src += ["--angles", ANGLES]
+                monkeypatch.setattr(sys, "stdin", io.StringIO("\n" * 8))
+            if keep is not None:
+                src += ["--keep", str(keep / stage)]
+        else:
+            src = [str(root / folder)]
+        assert run(["calibrate", stage, *src, "-o", str(target), *base]) == 0
+        base = ["--calibration", str(target)]
+    return out
+
+
+def test_live_chain_gives_the_folder_chain_maps(folders, tmp_path, monkeypatch, capsys):
+    root, _ = folders
+    disk = [load_calibration(p) for p in _chain(root, tmp_path, "disk", live=False)]
+    capsys.readouterr()
+    live = [load_calibration(p) for p in _chain(root, tmp_path, "live", live=True, monkeypatch=monkeypatch)]
+    captured = capsys.readouterr()
+    for a, b in zip(disk, live):
+        _maps_equal(a, b)
+        # the camera that exposed the frames (the recording's), not the replay
+        assert b.camera_id == a.camera_id == "synthetic-imx250"
+        assert (b.exposure_us, b.gain_db, b.layout) == (a.exposure_us, a.gain_db, a.layout)
+    final = live[2]
+    assert final.applied_stages == ["dark", "flat", "polarizer"]
+    for stage, folder, n in (("dark", "dark", 8), ("flat", "flat", 8), ("polarizer", "pol", 16)):
+        info = final.stages[stage]
+        assert info["source"] == "camera" and info["device"] == f"replay:{root / folder}"
+        assert info["camera_id"] == f"replay:{root / folder}" and info["camera"]["model"] == "replay"
+        assert (info["frames"], info["frames_good"], info["frames_incomplete"], info["frames_dropped"]) == (n, n, 0, 0)
+    assert final.stages["polarizer"]["frames_per_angle"] == 2
+    assert final.stages["polarizer"]["angles_deg"] == [0.0, 22.5, 45.0, 67.5, 90.0, 112.5, 135.0, 157.5]
+    # one prompt per angle on stderr; the report on stdout
+    prompts = re.findall(r"set the polarizer to (\S+) deg and press Enter", captured.err)
+    assert prompts == ANGLES.split(",")
+    assert "polarizer: 16 frames from camera replay:" in captured.out and "(0 incomplete, 0 dropped)" in captured.out
+
+
+def test_keep_writes_the_frames_to_redo_the_calibration_from_disk(folders, tmp_path, monkeypatch):
+    root, _ = folders
+    keep = tmp_path / "kept"
+    live = _chain(root, tmp_path, "live", live=True, monkeypatch=monkeypatch, keep=keep)
+    pol = sorted(p for p in (keep / "polarizer").iterdir() if p.suffix == ".raw")
+    assert len(pol) == 16 and len(list((keep / "dark").glob("*.raw"))) == 8
+    sources = sorted((root / "pol").glob("*.png"))  # the order the replay played them
+    for path, src in zip(pol, sources):
+        side = read_sidecar(path)
+        assert side["polarizer_deg"] == angle_from_name(src.stem) and side["camera_id"] == "synthetic-imx250"
+        np.testing.assert_array_equal(read_frame(path).mosaic, read_frame(src).mosaic)
+    assert load_calibration(live[2]).stages["polarizer"]["inputs"] == [str(p) for p in pol]
+    # redo the chain from the kept folders: the same maps
+    redo = []
+    base: list[str] = []
+    for stage in ("dark", "flat", "polarizer"):
+        target = tmp_path / f"redo-{stage}.npz"
+        assert run(["calibrate", stage, str(keep / stage), "-o", str(target), *base]) == 0
+        base = ["--calibration", str(target)]
+        redo.append(load_calibration(target))
+    for a, b in zip(redo, (load_calibration(p) for p in live)):
+        _maps_equal(a, b)
+    # a --keep folder holding frames already is refused before the camera is opened
+    with pytest.raises(CalibrationError, match=r"kept/dark: --keep folder already holds 8 raw frame"):
+        run(["calibrate", "dark", "--device", f"replay:{root / 'dark'}", "--frames", "8",
+             "-o", str(tmp_path / "again.npz"), "--keep", str(keep / "dark")])
+
+
+def test_end_of_input_at_a_prompt_writes_nothing(folders, tmp_path):
+    # a real pipe that closes after three answers: the command stops at the fourth angle
+    root, _ = folders
+    out = tmp_path / "pol.npz"
+    proc = subprocess.run(
+        [sys.executable, "-m", "polcam.calibration", "polarizer", "--device", f"replay:{root / 'pol'}",
+         "--frames", "2", "--angles", ANGLES, "-o", str(out)],
+        input="\n\n\n", capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("press Enter") == 4
+    assert "standard input ended before the polarizer was set to 67.5 deg (angle 4 of 8)" in proc.stderr
+    assert "no calibration written" in proc.stderr and not out.exists()
+
+
+def test_too_few_frames_are_refused(folders, tmp_path, monkeypatch):
+    root, _ = folders
+    out = tmp_path / "x.npz"
+    with pytest.raises(CalibrationError, match=r"camera replay:.*dark ran out of frames after 8 of the 9 good "
+                                               r"frames asked for the dark .*expected 9 good frames"):
+        run(["calibrate", "dark", "--device", f"replay:{root / 'dark'}", "--frames", "9", "-o", str(out)])
+    # a polarizer series: 16 files, 3 asked at each of 8 angles
+    monkeypatch.setattr(sys, "stdin", io.StringIO("\n" * 8))
+    with pytest.raises(CalibrationError, match=r"after 1 of the 3 good frames asked for the polarizer at 112.5 deg"):
+        run(["calibrate", "polarizer", "--device", f"replay:{root / 'pol'}", "--frames", "3", "--angles", ANGLES,
+             "-o", str(out)])
+    assert not out.exists()
+
+
+def test_an_unreadable_frame_counts_as_incomplete_and_is_replaced(folders, tmp_path):
+    # the replay camera reports a file it cannot read as an incomplete frame: the next good one is used
+    root, _ = folders
+    src = tmp_path / "darks"
+    shutil.copytree(root / "dark", src)
+    (src / "dark_003.png").write_bytes(b"not a png")
+    (src / "dark_999.png").write_bytes((root / "dark" / "dark_003.png").read_bytes())
+    (src / "dark_999.json").write_bytes((root / "dark" / "dark_003.json").read_bytes())
+    out = tmp_path / "d.npz"
+    assert run(["calibrate", "dark", "--device", f"replay:{src}", "--frames", "8", "-o", str(out)]) == 0
+    info = load_calibration(out).stages["dark"]
+    assert (info["frames_good"], info["frames_incomplete"], info["frames_dropped"]) == (8, 1, 0)
+    _maps_equal(load_calibration(out), _disk_dark(root, tmp_path))
+
+
+def _disk_dark(root, tmp_path):
+    target = tmp_path / "disk-dark.npz"
+    run(["calibrate", "dark", str(root / "dark"), "-o", str(target)])
+    return load_calibration(target)
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["{root}/dark", "--device", "replay:{root}/dark", "--frames", "8"], "both FRAMES .* and --device"),
+    ([], "no frames: give FRAMES .* or --device ID"),
+    (["--device", "replay:{root}/dark"], "without --frames N"),
+    (["--device", "replay:{root}/dark", "--frames", "0"], "--frames 0: expected a positive number"),
+    (["{root}/dark", "--frames", "8"], "--frames given with FRAMES"),
+    (["{root}/dark", "--keep", "k", "--exposure", "100"], "--keep, --exposure given with FRAMES"),
+    (["--device", "replay:{root}/dark", "--frames", "2", "--recursive"], "--recursive given with --device"),
+])
+def test_the_source_must_be_frames_or_a_device(folders, tmp_path, argv, message):
+    root, _ = folders
+    out = tmp_path / "x.npz"
+    with pytest.raises(CalibrationError, match=message):
+        run(["calibrate", "dark", *[a.format(root=root) for a in argv], "-o", str(out)])
+    assert not out.exists()
+
+
+def test_live_polarizer_needs_good_angles(folders, tmp_path):
+    root, _ = folders
+    pol = ["calibrate", "polarizer", "--device", f"replay:{root / 'pol'}", "--frames", "2", "-o",
+           str(tmp_path / "x.npz")]
+    with pytest.raises(CalibrationError, match="without --angles"):
+        run(pol)
+    with pytest.raises(CalibrationError, match="'north' is not a number"):
+        run([*pol, "--angles", "0,north,90"])
+    with pytest.raises(CalibrationError, match="4 distinct polarizer angles"):  # before any prompt
+        run([*pol, "--angles", "0,45,90,135"])
+
+
+def test_grabber_takes_no_frame_exposed_before_enter(folders, tmp_path, monkeypatch):
+    # a free-running camera (replay at a frame rate) keeps exposing while the polarizer turns: the grabber
+    # stops it at every prompt, so every frame of an angle was taken after that angle's Enter
+    from polcam.camera import ReplayCamera
+    from polcam.calibration.cli import FrameGrabber
+
+    root, _ = folders
+    enter_ns: list[int] = []
+
+    class SlowOperator(io.StringIO):
+        def readline(self, *args):
+            time.sleep(0.15)  # a camera left running would queue stale frames meanwhile
+            enter_ns.append(time.time_ns())
+            return "\n"
+
+    monkeypatch.setattr(sys, "stdin", SlowOperator())
+    angles = [0.0, 45.0, 90.0]
+    with ReplayCamera(root / "dark", frame_rate=200.0, loop=True) as cam:
+        cam.configure()
+        assert not cam.waits_for_reader
+        grabber = FrameGrabber(cam, "polarizer")
+        stamps = [f.metadata["timestamp_ns"] for f in grabber.polarizer_frames(angles, 3)]
+    assert len(enter_ns) == 3 and len(stamps) == 9 and grabber.taken == 9
+    for k in range(3):
+        assert all(t > enter_ns[k] for t in stamps[3 * k:3 * k + 3])
+        assert k == 2 or all(t < enter_ns[k + 1] for t in stamps[3 * k:3 * k + 3])
+
+
+needs_aravis = pytest.mark.skipif(not aravis_available(), reason="Aravis 0.8 is not installed")
+
+
+@needs_aravis
+@pytest.mark.camera
+def test_dark_from_the_aravis_fake_camera(tmp_path, capsys):
+    out = tmp_path / "fake-dark.npz"
+    assert run(["calibrate", "dark", "--device", "Fake_1", "--pixel-format", "Mono8", "--layout", "imx250mzr",
+                "--roi", "0", "0", "64", "32", "--frames", "4", "-o", str(out), "--keep", str(tmp_path / "k")]) == 0
+    assert "dark: 4 frames from camera Fake_1" in capsys.readouterr().out
+    cal = load_calibration(out)
+    assert cal.camera_id == "Fake_1" and cal.shape == (32, 64) and str(cal.layout) == "imx250mzr"
+    assert cal.roi == [0, 0, 64, 32] and cal.exposure_us is not None
+    info = cal.stages["dark"]
+    assert info["device"] == "Fake_1" and info["camera_id"] == "Fake_1" and info["camera"]["vendor"] == "Aravis"
+    assert info["frames_good"] == 4 and info["frames_incomplete"] == 0
+    kept = sorted((tmp_path / "k").glob("*.raw"))
+    assert len(kept) == 4
+    for path in kept:  # the camera's bytes: the fake's ramp (x + y + frame id) mod 255
+        side = read_sidecar(path)
+        y, x = np.mgrid[0:32, 0:64]
+        ramp = ((x + y + side["frame_id"]) % 255).astype(np.uint8)
+        np.testing.assert_array_equal(np.frombuffer(path.read_bytes(), np.uint8).reshape(32, 64), ramp)
