@@ -257,7 +257,10 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
     products: dict[str, np.ndarray] = {"s0": s.s0, "dolp": st.dolp(s), "aolp": st.aolp(s)}
     timings["stokes"] = time.perf_counter() - t
     t = time.perf_counter()
-    res = separate(np.clip(stack, 0.0, 1.0), method=method, **method_options)
+    run_options = dict(method_options)
+    if _IN_POOL and method in _POOLED_METHODS and "workers" not in run_options:
+        run_options["workers"] = 1  # the frames are the parallel part here (the answer does not change)
+    res = separate(np.clip(stack, 0.0, 1.0), method=method, **run_options)
     timings["separate"] = time.perf_counter() - t
     products["diffuse"], products["specular"] = res.diffuse, res.specular
 
@@ -360,7 +363,17 @@ class RunRecording:
         self._rec.flush()
 
 
+#: True in the worker processes of :func:`run`: the frames run in parallel there, so the tensor
+#: methods solve their tiles in the worker itself instead of starting processes of their own.
+_IN_POOL = False
+
+#: Methods with a ``workers`` option (their own worker processes).
+_POOLED_METHODS = ("tensor", "tensor-tau", "tensor-plain")
+
+
 def _init_worker() -> None:
+    global _IN_POOL
+    _IN_POOL = True
     # one BLAS/OpenMP thread per worker process: no oversubscription, thread-count-independent results
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"

@@ -170,6 +170,12 @@ def test_workers_and_dask_give_the_same_outputs(raw_dir, tmp_path):
         jobs, _ = plan([raw_dir], tmp_path / "dask")
         assert all(r["status"] == "done" for r in run(jobs, opts, scheduler=client))
     outs["dask"] = tmp_path / "dask"
+    for label, want in (("w1", None), ("w2", 1)):
+        # in a pool of frame workers the tensor method starts no worker processes of its own;
+        # what was asked for (the fingerprint) does not record that
+        meta = json.loads((outs[label] / "colour0" / "meta.json").read_text())
+        assert "workers" not in meta["method_options"]
+        assert meta["separation_info"]["options"]["workers"] == want
     for name in (MONO, "colour0", "colour1"):
         for p in OUTPUTS:
             ref, _ = read_image(outs["w1"] / name / f"{p}.exr")

@@ -140,8 +140,11 @@ EXACT_TOL = 1e-5
 FAST_TOL = 5e-4
 #: Images up to this many pixels are one tensor problem (the answer of the exact solver).
 AUTO_UNTILED_PIXELS = 256 * 256
-#: Tile side used above that size.
-AUTO_TILE = 64
+#: Largest tile (height, width) used above that size; each side is shrunk to the smallest that
+#: needs no more tiles (:func:`_fit_side`).  Narrow tiles make the Gram side of a slice small
+#: (3 x 32 = 96 columns: eigenproblems of 96 instead of 192 for 64 x 64 tiles) at the same
+#: quality (docs/benchmarks.md, Tensor solver speed).
+AUTO_TILE = (96, 32)
 #: Tiles per call of the PyTorch backend (one batched problem on the device).
 DEVICE_BATCH = 64
 #: Most worker processes chosen by ``workers=None`` (each holds a few hundred MB at most).
@@ -613,29 +616,39 @@ def phase_project_slices(z: np.ndarray, n1: int, n2: int, out: np.ndarray | None
     """
     n4 = z.shape[0]
     v = z.reshape(n4, 4, n1, 3, n2)
-    s0h = v.sum(axis=1)
-    s0h *= 0.25                                          # Ic
-    s1 = v[:, 0] - v[:, 2]
-    s2 = v[:, 1] - v[:, 3]
-    amp = np.hypot(s1, s2)                               # 2 Isv
-    inv = np.zeros_like(amp)
-    np.divide(1.0, amp, out=inv, where=amp > 0)
-    c = (s1 * inv).sum(axis=2, keepdims=True)            # sum of unit phasors over RGB
-    s = (s2 * inv).sum(axis=2, keepdims=True)
+    s1 = np.subtract(v[:, 0], v[:, 2])
+    s2 = np.subtract(v[:, 1], v[:, 3])
+    amp = np.multiply(s1, s1)
+    amp += s2 * s2
+    np.sqrt(amp, out=amp)                                # 2 Isv
+    tiny = np.finfo(amp.dtype).tiny
+    inv = np.maximum(amp, tiny)
+    np.divide(1.0, inv, out=inv)                         # where amp = 0, s1 = s2 = 0: no phasor
+    s1 *= inv
+    s2 *= inv
+    c = s1[:, :, 0] + s1[:, :, 1]                        # sum of unit phasors over RGB
+    c += s1[:, :, 2]
+    s = s2[:, :, 0] + s2[:, :, 1]
+    s += s2[:, :, 2]
     nz = np.hypot(c, s)
-    pos = nz > 0
-    np.divide(c, nz, out=c, where=pos)
-    c[~pos] = 1.0
-    np.divide(s, nz, out=s, where=pos)
-    amp *= 0.5                                           # Isv
-    ac = amp * c
-    as_ = amp * s
+    zero = nz == 0
+    np.maximum(nz, tiny, out=nz)
+    np.divide(0.5, nz, out=nz)                           # the 1/2 turns 2 Isv into Isv
+    c *= nz
+    s *= nz
+    c[zero] = 0.5                                        # direction (1, 0) where the sum is zero
+    amp_c = amp * c[:, :, None]                          # Isv cos 2phi
+    amp_s = amp * s[:, :, None]                          # Isv sin 2phi
+    s0h = np.add(v[:, 0], v[:, 1])
+    s0h += v[:, 2]
+    s0h += v[:, 3]
+    s0h *= 0.25                                          # Ic
     res = np.empty_like(z) if out is None else out
     r = res.reshape(n4, 4, n1, 3, n2)
-    np.add(s0h, ac, out=r[:, 0])
-    np.add(s0h, as_, out=r[:, 1])
-    np.subtract(s0h, ac, out=r[:, 2])
-    np.subtract(s0h, as_, out=r[:, 3])
+    np.add(s0h, amp_c, out=r[:, 0])
+    np.add(s0h, amp_s, out=r[:, 1])
+    np.subtract(s0h, amp_c, out=r[:, 2])
+    np.subtract(s0h, amp_s, out=r[:, 3])
     return res
 
 
@@ -750,18 +763,26 @@ def ialm_fast(D: np.ndarray, *, tau: np.ndarray | None, lam: float, gamma: float
     mu_cap = mu * mu_max
     mu_start = mu
     w = dt.type(lam) * (np.ones((1,) + D.shape[1:], dt) if tau is None else np.asarray(tau, dt))
+    wb = np.broadcast_to(w, D.shape)
+    wn = np.negative(wb)
+    # scaled form (Boyd et al. 2011, section 3.1.1): P = Y / mu.  With gamma_t = gamma mu_t the
+    # target (2 g Q + mu (D - S) + Y) / (2 g + mu) is c1 E + c2 Q with E = D - S + P and constant
+    # c1, c2; S = V - C and Y_new / mu_new = C mu / mu_new with V = D - L + P, C = clip(V, +-w / mu);
+    # the residual D - L - S = C - P; and the next E = L + (C - P) + P_new (docs/algorithm.md)
+    c1, c2 = dt.type(1.0 / (1.0 + 2.0 * gamma)), dt.type(2.0 * gamma / (1.0 + 2.0 * gamma))
     L = np.zeros_like(D)
     S = np.zeros_like(D)
-    Y = np.zeros_like(D)
+    P = np.zeros_like(D)
+    E = D.copy()
     T = np.empty_like(D)
     V = np.empty_like(D)
-    Q = project(D) if gamma > 0 else np.empty_like(D)
+    R = np.empty_like(D)
+    Q = project(D) if gamma > 0 else None
     svt = FastTSVT(n4, dtype=dt, **(svt_options or {}))
     # the element-wise updates, on chunks of the slices (threads when chunks > 1)
     nch = max(1, min(int(chunks), n4))
     bounds = np.linspace(0, n4, nch + 1).astype(int)
     parts = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-    wb = np.broadcast_to(w, D.shape)
     pool = ThreadPoolExecutor(max_workers=nch) if nch > 1 else None
 
     def each(fn: Callable[[slice], Any]) -> list[Any]:
@@ -775,55 +796,51 @@ def ialm_fast(D: np.ndarray, *, tau: np.ndarray | None, lam: float, gamma: float
     it = 0
     try:
         for it in range(1, max_iter + 1):
-            g = gamma * mu
-            den = 2 * g + mu
-            a_s, a_q, a_y = dt.type(mu / den), dt.type(2 * g / den), dt.type(1.0 / den)
+            if gamma > 0:
+                def target(c: slice) -> None:
+                    np.multiply(E[c], c1, out=T[c])
+                    np.multiply(Q[c], c2, out=V[c])
+                    T[c] += V[c]
 
-            def target(c: slice) -> None:
-                # (2 g Q + mu (D - S) + Y) / (2 g + mu)
-                t_, v_ = T[c], V[c]
-                np.subtract(D[c], S[c], out=t_)
-                t_ *= a_s
-                if g > 0:
-                    np.multiply(Q[c], a_q, out=v_)
-                    t_ += v_
-                np.multiply(Y[c], a_y, out=v_)
-                t_ += v_
-
-            each(target)
-            Z = svt.forward(T)
-            ranks.append(svt.threshold_packed(Z, 1.0 / den))
+                each(target)
+                Z = svt.forward(T)
+            else:
+                Z = svt.forward(E)
+            ranks.append(svt.threshold_packed(Z, 1.0 / (mu * (1.0 + 2.0 * gamma))))
             L = svt.inverse(Z)
-            inv_mu, mu_t = dt.type(1.0 / mu), dt.type(mu)
+            mu_t, inv_mu = dt.type(mu), dt.type(1.0 / mu)
 
             def update(c: slice) -> float:
-                # S = soft(D - L + Y / mu, w / mu) = V - clip(V, -w / mu, w / mu)
-                t_, v_, l_ = T[c], V[c], L[c]
-                np.multiply(Y[c], inv_mu, out=v_)
-                v_ += D[c]
-                v_ -= l_
-                thr = wb[c] * inv_mu
-                np.clip(v_, -thr, thr, out=t_)
-                np.subtract(v_, t_, out=S[c])
-                if g > 0 and chunked_project:
-                    project(l_, out=Q[c])
-                # Y += mu (D - L - S)
-                np.subtract(D[c], l_, out=t_)
-                t_ -= S[c]
-                tf = t_.reshape(-1)
-                r2 = float(np.dot(tf, tf))
-                t_ *= mu_t
-                Y[c] += t_
-                return r2
+                v_, t_, r_ = V[c], T[c], R[c]
+                np.subtract(D[c], L[c], out=v_)       # V = D - L + P
+                v_ += P[c]
+                np.multiply(v_, mu_t, out=t_)         # mu C = clip(mu V, -w, w)
+                np.clip(t_, wn[c], wb[c], out=t_)
+                np.multiply(t_, inv_mu, out=r_)       # R = C - P = D - L - S
+                r_ -= P[c]
+                rf = r_.reshape(-1)
+                return float(np.dot(rf, rf))
 
             res = math.sqrt(sum(each(update))) / norm_d
-            if g > 0 and not chunked_project:
-                Q = project(L)
             residuals.append(res)
-            if res < tol:
-                converged = True
+            if res < tol or it == max_iter:
+                converged = res < tol
+                each(lambda c: (np.subtract(V[c], R[c], out=S[c]), np.subtract(S[c], P[c], out=S[c])))
                 break
-            mu = min(rho * mu, mu_cap)
+            mu_next = min(rho * mu, mu_cap)
+            scale = dt.type(1.0 / mu_next)
+
+            def advance(c: slice) -> None:
+                np.add(L[c], R[c], out=E[c])         # E = L + (C - P) + P_new
+                np.multiply(T[c], scale, out=P[c])   # P_new = Y_new / mu_next = mu C / mu_next
+                E[c] += P[c]
+                if gamma > 0 and chunked_project:
+                    project(L[c], out=Q[c])
+
+            each(advance)
+            if gamma > 0 and not chunked_project:
+                Q = project(L)
+            mu = mu_next
     finally:
         if pool is not None:
             pool.shutdown()
@@ -875,14 +892,27 @@ def _ramps(spans: list[tuple[int, int]]) -> list[np.ndarray]:
     return out
 
 
-def tile_windows(shape: tuple[int, int], tile: int, overlap: int) -> list[tuple[slice, slice]]:
-    """(rows, cols) windows of the tiles of an (H, W) image, row by row (:func:`tile_spans`)."""
-    ys = tile_spans(shape[0], tile, overlap)
-    xs = tile_spans(shape[1], tile, overlap)
+def _pair(tile: int | tuple[int, int]) -> tuple[int, int]:
+    """(height, width) of a tile given as one side or a pair."""
+    if isinstance(tile, (tuple, list)):
+        return int(tile[0]), int(tile[1])
+    return int(tile), int(tile)
+
+
+def tile_windows(shape: tuple[int, int], tile: int | tuple[int, int], overlap: int
+                 ) -> list[tuple[slice, slice]]:
+    """(rows, cols) windows of the tiles of an (H, W) image, row by row (:func:`tile_spans`).
+
+    ``tile`` is the side of square tiles or their (height, width).
+    """
+    th, tw = _pair(tile)
+    ys = tile_spans(shape[0], th, overlap)
+    xs = tile_spans(shape[1], tw, overlap)
     return [(slice(*y), slice(*x)) for y in ys for x in xs]
 
 
-def blend(shape: tuple[int, int], tile: int, overlap: int, results: list[np.ndarray]) -> np.ndarray:
+def blend(shape: tuple[int, int], tile: int | tuple[int, int], overlap: int,
+          results: list[np.ndarray]) -> np.ndarray:
     """Blend per-tile results (in :func:`tile_windows` order) into one (H, W, C) image.
 
     Per pixel: the average of the tiles covering it, each weighted by a
@@ -891,8 +921,9 @@ def blend(shape: tuple[int, int], tile: int, overlap: int, results: list[np.ndar
     weights, so overlapping constant results blend to that constant.
     """
     h, w = shape
-    ys = tile_spans(h, tile, overlap)
-    xs = tile_spans(w, tile, overlap)
+    th, tw = _pair(tile)
+    ys = tile_spans(h, th, overlap)
+    xs = tile_spans(w, tw, overlap)
     if len(results) != len(ys) * len(xs):
         raise ValueError(f"{len(results)} tile results for {len(ys) * len(xs)} tiles")
     wy, wx = _ramps(ys), _ramps(xs)
@@ -944,25 +975,48 @@ def _tile_job(args: tuple[Any, ...]) -> tuple[np.ndarray, float, dict[str, Any]]
     return np.asarray(dl, dtype=np.float32), lam_t, rec
 
 
+def _process_context() -> Any:
+    """The multiprocessing context of the worker pools.
+
+    fork where it is safe and cheap: Python before 3.12 and no Python thread
+    besides this one (the workers then share this process's pages, copy on
+    write, and need nothing re-imported).  Otherwise forkserver (a clean
+    process started once, with numpy, scipy and this module imported, that
+    forks the workers): a process running threads (the live view of
+    ``polcam capture``, a user's application) must not fork, since the child
+    inherits locks those threads may hold, and Python 3.12 warns about it.
+    Like spawn, forkserver workers import the caller's main script, which must
+    then be guarded by ``if __name__ == "__main__":`` (``workers=1`` starts no
+    process).  Platforms without either: spawn.
+    """
+    import multiprocessing
+    import sys
+    import threading
+
+    methods = multiprocessing.get_all_start_methods()
+    if sys.version_info < (3, 12) and threading.active_count() == 1 and "fork" in methods:
+        return multiprocessing.get_context("fork")
+    if "forkserver" not in methods:  # pragma: no cover - not Linux
+        return multiprocessing.get_context("spawn")
+    ctx = multiprocessing.get_context("forkserver")
+    from multiprocessing import forkserver
+
+    if not getattr(forkserver._forkserver, "_forkserver_pid", None):  # not started yet: choose its preload
+        ctx.set_forkserver_preload([__name__])
+    return ctx
+
+
 def _map_processes(fn: Callable[[Any], Any], jobs: Any, workers: int) -> list[Any]:
     """``[fn(j) for j in jobs]`` in ``workers`` processes, at most 2 jobs per worker in flight.
 
     Threads do not pay here: the tiles' many small numpy and LAPACK calls hold
     the GIL long enough that two threads ran only 1.2 times faster than one.
     """
-    import multiprocessing
-    import sys
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-    # fork: the workers share this process's pages (copy on write: its arrays are not
-    # duplicated) and need no main-module guard in the caller's script; from Python 3.12,
-    # which warns about forking a process with threads (BLAS starts some), forkserver
-    method = "fork" if sys.version_info < (3, 12) else "forkserver"
-    if method not in multiprocessing.get_all_start_methods():
-        method = "spawn"
     out: dict[int, Any] = {}
     it = iter(enumerate(jobs))
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context(method)) as pool:
+    with ProcessPoolExecutor(max_workers=workers, mp_context=_process_context()) as pool:
         pending = {}
         for i, job in it:
             pending[pool.submit(fn, job)] = i
@@ -982,23 +1036,47 @@ def _map_processes(fn: Callable[[Any], Any], jobs: Any, workers: int) -> list[An
 # the method
 # ---------------------------------------------------------------------------
 
-def _tile_plan(h: int, w: int, tile: int | None, overlap: int, solver: str) -> tuple[int, int]:
-    """Tile side and overlap for an (h, w) image; a tile side >= max(h, w) means one tile.
+def _fit_side(n: int, side: int, overlap: int) -> int:
+    """The smallest tile side up to ``side`` that covers ``n`` pixels with as few tiles as ``side`` does.
+
+    :func:`tile_spans` spreads a fixed number of tiles evenly, so a side larger
+    than needed only widens the overlaps (1024 rows in tiles of 96 overlapping
+    by at least 4 need 12 tiles; 89 rows each do it with overlaps of 4, 96
+    with overlaps of 12, work spent twice).
+    """
+    if n <= side:
+        return n
+    count = math.ceil((n - overlap) / (side - overlap))
+    return min(side, math.ceil((n - overlap) / count) + overlap)
+
+
+def _tile_plan(h: int, w: int, tile: int | tuple[int, int] | None, overlap: int, solver: str
+               ) -> tuple[tuple[int, int], int]:
+    """Tile (height, width) and overlap for an (h, w) image; a tile covering the image means one tile.
 
     ``tile=None``: the exact solver always solves one problem; the fast one up to
-    :data:`AUTO_UNTILED_PIXELS` pixels, tiles of :data:`AUTO_TILE` above.
+    :data:`AUTO_UNTILED_PIXELS` pixels, tiles of :data:`AUTO_TILE` above.  An
+    integer asks for square tiles, a pair for (height, width).  A side at least
+    the image's is that whole side (one tile along it).
     """
     if tile is None:
         if solver == "exact" or h * w <= AUTO_UNTILED_PIXELS:
-            return max(h, w), 0
-        tile = AUTO_TILE
-    if not isinstance(tile, (int, np.integer)) or tile < 8:
-        raise MethodError(f"tile = {tile!r}: expected None (automatic) or a tile side of at least 8 pixels")
-    if not isinstance(overlap, (int, np.integer)) or overlap < 0 or overlap >= tile // 2:
-        raise MethodError(f"overlap = {overlap!r}: expected an integer in 0 .. {tile // 2 - 1} for tile {tile}")
-    if tile >= max(h, w):
-        return max(h, w), 0
-    return int(tile), int(overlap)
+            return (h, w), 0
+        _, overlap = _tile_plan(h, w, AUTO_TILE, overlap, solver)  # checks the overlap
+        tile = (_fit_side(h, AUTO_TILE[0], overlap), _fit_side(w, AUTO_TILE[1], overlap))
+    pair = tuple(tile) if isinstance(tile, (tuple, list)) else (tile,) * 2
+    if len(pair) != 2 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 8
+                                 for v in pair):
+        raise MethodError(f"tile = {tile!r}: expected None (automatic), a tile side of at least 8 pixels, "
+                          "or a (height, width) pair of such sides")
+    small = min(int(v) for v in pair)
+    if (not isinstance(overlap, (int, np.integer)) or isinstance(overlap, bool) or overlap < 0
+            or overlap >= small // 2):
+        raise MethodError(f"overlap = {overlap!r}: expected an integer in 0 .. {small // 2 - 1} for tile {tile!r}")
+    th, tw = min(int(pair[0]), h), min(int(pair[1]), w)
+    if th >= h and tw >= w:
+        return (h, w), 0
+    return (th, tw), int(overlap)
 
 
 def _solve_tile(d0: np.ndarray, tw: np.ndarray | None, *, lam: float | None, gamma: float,
@@ -1182,7 +1260,7 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     tw = tau_weights(d0[0], alpha=opt["alpha"], beta=opt["beta"], floor=opt["tau_floor"]) if use_tau else None
     records: list[tuple[float, dict[str, Any]]] = []
 
-    one_tile = tile >= max(h, w)
+    one_tile = tile == (h, w)
     # one BLAS thread: OpenBLAS' threaded complex SVD of these slice sizes was 12 times
     # slower than the single-threaded one on the 2-core machine (docs/benchmarks.md); the
     # Fourier slices (one tile) or the tiles (worker processes) run in parallel instead
@@ -1228,7 +1306,7 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
         "gamma": gamma,
         "representations_filled": filled,
         "tensor_shape": [4 * h, 3 * w, n4],
-        "tile": None if tile >= max(h, w) else [tile, overlap],
+        "tile": None if one_tile else [tile[0], tile[1], overlap],
         "tiles": len(records),
         "timings": timings,
         "iterations": slowest["iterations"],

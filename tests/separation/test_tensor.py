@@ -344,7 +344,7 @@ def test_tiled_separation_keeps_the_contract_and_does_not_depend_on_workers():
     two = separate(stack, method="tensor", tile=12, overlap=4, workers=2)
     np.testing.assert_array_equal(one.diffuse, two.diffuse)
     info = one.info
-    assert info["tiles"] == 9 and info["tile"] == [12, 4] and len(info["iterations_per_tile"]) == 9
+    assert info["tiles"] == 9 and info["tile"] == [12, 12, 4] and len(info["iterations_per_tile"]) == 9
     assert info["iterations"] == max(info["iterations_per_tile"]) == len(info["residuals"])
     mean = stack.mean(axis=0)
     np.testing.assert_allclose(one.diffuse + one.specular, mean, atol=1e-6)
@@ -423,10 +423,39 @@ def test_tile_plan_keeps_the_exact_solver_whole_and_tiles_large_fast_runs():
     from polcam.separation.tensor import AUTO_TILE, AUTO_UNTILED_PIXELS, _tile_plan
 
     big = int(np.sqrt(AUTO_UNTILED_PIXELS)) + 1
-    assert _tile_plan(big, big, None, 4, "exact") == (big, 0)
-    assert _tile_plan(big, big, None, 4, "fast") == (AUTO_TILE, 4)
-    assert _tile_plan(big - 1, big - 1, None, 4, "fast") == (big - 1, 0)
-    assert _tile_plan(big, big, 32, 4, "exact") == (32, 4)           # asked for: tiles
+    assert _tile_plan(big, big, None, 4, "exact") == ((big, big), 0)
+    (th, tw), ov = _tile_plan(big, big, None, 4, "fast")
+    assert ov == 4 and th <= AUTO_TILE[0] and tw <= AUTO_TILE[1]
+    # the automatic tile is the smallest that needs no more tiles than AUTO_TILE does
+    for got, most in ((th, AUTO_TILE[0]), (tw, AUTO_TILE[1])):
+        assert len(tile_spans(big, got, 4)) == len(tile_spans(big, most, 4))
+        assert len(tile_spans(big, got - 1, 4)) > len(tile_spans(big, most, 4))
+    assert _tile_plan(big - 1, big - 1, None, 4, "fast") == ((big - 1, big - 1), 0)
+    assert _tile_plan(big, big, 32, 4, "exact") == ((32, 32), 4)     # asked for: tiles
+    assert _tile_plan(big, big, (48, 16), 4, "fast") == ((48, 16), 4)
+    assert _tile_plan(20, big, (48, 16), 4, "fast") == ((20, 16), 4)  # one tile along the short side
+    assert _tile_plan(20, 30, (48, 32), 4, "fast") == ((20, 30), 0)   # the whole image
+    for bad in [(48,), (48, 4), (48, 16, 2), "48", True, (48.0, 16)]:
+        with pytest.raises(MethodError, match="tile"):
+            _tile_plan(big, big, bad, 4, "fast")
+    with pytest.raises(MethodError, match="overlap"):
+        _tile_plan(big, big, (48, 16), 8, "fast")                     # half the narrow side
+
+
+def test_rectangular_tiles_cover_the_image_and_blend_constants_exactly():
+    windows = tile_windows((50, 70), (24, 12), 4)
+    cover = np.zeros((50, 70), int)
+    for r, c in windows:
+        assert (r.stop - r.start, c.stop - c.start) == (24, 12)
+        cover[r, c] += 1
+    assert cover.min() >= 1
+    res = [np.full((24, 12, 3), 0.25) for _ in windows]
+    np.testing.assert_allclose(blend((50, 70), (24, 12), 4, res), 0.25)
+    stack, D = _scene(24)
+    got = separate(stack, method="tensor", tile=(24, 12), overlap=4, workers=1)
+    assert got.info["tile"] == [24, 12, 4] and got.info["tiles"] == len(tile_windows((24, 24), (24, 12), 4))
+    mean = stack.mean(axis=0)
+    assert np.mean((got.diffuse - D) ** 2) < 0.25 * np.mean((mean - D) ** 2)
 
 
 def test_spectral_norm_of_slices_matches_arpack():
@@ -439,3 +468,26 @@ def test_spectral_norm_of_slices_matches_arpack():
             D = np.abs(D)                                  # a dominant DC slice, as images have
         want = _spectral_norm(D)
         assert _spectral_norm_slices(np.moveaxis(D, 2, 0)) == pytest.approx(want, rel=1e-10)
+
+
+def test_worker_pools_fork_only_without_threads_and_agree_either_way():
+    import sys
+    import threading
+
+    from polcam.separation.tensor import _process_context
+
+    stack, _ = _scene(24)
+    alone = separate(stack, method="tensor", tile=12, overlap=4, workers=2)
+    if sys.version_info < (3, 12):
+        assert _process_context().get_start_method() == "fork"
+    release = threading.Event()
+    other = threading.Thread(target=release.wait, daemon=True)
+    other.start()
+    try:
+        # a running thread (a live view, an application): no fork, the fork server instead
+        assert _process_context().get_start_method() == "forkserver"
+        with_thread = separate(stack, method="tensor", tile=12, overlap=4, workers=2)
+    finally:
+        release.set()
+        other.join()
+    np.testing.assert_array_equal(with_thread.diffuse, alone.diffuse)
