@@ -491,3 +491,14 @@ def test_worker_pools_fork_only_without_threads_and_agree_either_way():
         release.set()
         other.join()
     np.testing.assert_array_equal(with_thread.diffuse, alone.diffuse)
+
+
+def test_initial_diffuse_in_the_background_gives_the_same_answer():
+    # from 256 x 256 the four Yang'10 runs of the shared initial diffuse start in worker
+    # processes before the representations are found; one worker runs them in turn afterwards
+    stack, _ = _scene(256)
+    kw = dict(tile=(128, 128), max_iter=3)
+    one = separate(stack, method="tensor", workers=1, **kw)
+    two = separate(stack, method="tensor", workers=2, **kw)
+    np.testing.assert_array_equal(two.diffuse, one.diffuse)
+    assert two.info["tiles"] == 9 and two.info["iterations"] == 3
