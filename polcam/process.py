@@ -94,17 +94,9 @@ def _canonical(obj: Any) -> str:
 
 
 def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
+    from polcam._jsonable import jsonable
+
+    return jsonable(obj)
 
 
 def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False) -> tuple[list[FrameJob], list[dict[str, str]]]:

@@ -193,17 +193,9 @@ def parse_angles(text: str) -> list[float]:
 
 def _plain(obj: Any) -> Any:
     """``obj`` with tuples as lists and non-finite floats as ``None`` (for the file's JSON)."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, (str, int, float, bool)) or obj is None:
-        return obj
-    return str(obj)
+    from polcam._jsonable import jsonable
+
+    return jsonable(obj, other="str")
 
 
 class FrameGrabber:
