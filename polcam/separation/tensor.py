@@ -766,7 +766,7 @@ def ialm_fast(D: np.ndarray, *, tau: np.ndarray | None, lam: float, gamma: float
     mu_start = mu
     w = dt.type(lam) * (np.ones((1,) + D.shape[1:], dt) if tau is None else np.asarray(tau, dt))
     wb = np.broadcast_to(w, D.shape)
-    wn = np.negative(wb)
+    wn = np.broadcast_to(np.negative(w), D.shape)
     # scaled form (Boyd et al. 2011, section 3.1.1): P = Y / mu.  With gamma_t = gamma mu_t the
     # target (2 g Q + mu (D - S) + Y) / (2 g + mu) is c1 E + c2 Q with E = D - S + P and constant
     # c1, c2; S = V - C and Y_new / mu_new = C mu / mu_new with V = D - L + P, C = clip(V, +-w / mu);
