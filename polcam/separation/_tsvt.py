@@ -56,6 +56,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import scipy.linalg as sla
 
+from polcam.separation import _lapack
+
 __all__ = [
     "tsvt",
     "tensor_nuclear_norm",
@@ -198,31 +200,26 @@ def _gershgorin(g: np.ndarray, *, upper: bool) -> float:
 
 
 def _eigh(g: np.ndarray, lower: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenpairs of a Hermitian matrix, ascending.
+    """Eigenpairs of a Hermitian matrix, ascending (``g`` is overwritten).
 
-    LAPACK syevd/heevd (divide and conquer), except heevr (MRRR) for complex
-    matrices of size 512 and more, where it took 140 ms against heevd's 250 ms
-    at size 768 on the development machine (OpenBLAS 0.3.31, one thread);
-    asking heevr for only the eigenvalues above the threshold was slower still
-    when most of them pass it.
+    LAPACK syevd (real) and heevd (complex, divide and conquer), except heevr
+    (MRRR) for complex matrices of size 512 and more, where it took 140-174 ms
+    against heevd's 236-250 ms at size 768 on the development machine (OpenBLAS
+    0.3.31, one thread; at 96 heevd is faster); asking heevr for only the
+    eigenvalues above the threshold was slower still when most of them pass it.
+    All run through :mod:`polcam.separation._lapack`, which releases the GIL
+    (``scipy.linalg.eigh`` is the fallback).
     """
-    if np.iscomplexobj(g) and g.shape[0] >= 512:
+    # through scipy's Cython LAPACK pointers, without the GIL, so the Fourier slices of one
+    # tile really are decomposed in parallel threads (scipy's wrappers hold the GIL: two
+    # 768 x 768 complex problems took 362 ms in two threads, 190 ms like this)
+    big_complex = np.iscomplexobj(g) and g.shape[0] >= 512
+    got = _lapack.eigh(g, upper=not lower, driver="evr" if big_complex else "evd")
+    if got is not None:
+        return got
+    if big_complex:
         return sla.eigh(g, lower=lower, driver="evr", check_finite=False, overwrite_a=True)
-    if g.dtype in _EVD and (g.flags.f_contiguous or (g.flags.c_contiguous and not np.iscomplexobj(g))):
-        # straight to LAPACK with its minimal (= optimal) workspace: scipy.linalg.eigh's checks
-        # and workspace query cost a tenth of a 96 x 96 decomposition.  A C-ordered real
-        # symmetric matrix is its own transpose: read it as Fortran-ordered, without a copy.
-        fn = _EVD[g.dtype]
-        w, v, info = fn(g if g.flags.f_contiguous else g.T, compute_v=1, lower=int(lower), overwrite_a=1)
-        if info == 0:
-            return w, v
     return sla.eigh(g, lower=lower, driver="evd", check_finite=False, overwrite_a=True)
-
-
-#: LAPACK divide-and-conquer eigensolvers by dtype (:func:`_eigh`).
-_EVD = {np.dtype(t): sla.lapack.get_lapack_funcs(("syevd" if t in (np.float32, np.float64) else "heevd",),
-                                                (np.zeros((1, 1), t),))[0]
-        for t in (np.float32, np.float64, np.complex64, np.complex128)}
 
 
 def _orth(z: np.ndarray) -> np.ndarray:
