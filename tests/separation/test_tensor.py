@@ -484,8 +484,14 @@ def test_worker_pools_fork_only_without_threads_and_agree_either_way():
     other = threading.Thread(target=release.wait, daemon=True)
     other.start()
     try:
-        # a running thread (a live view, an application): no fork, the fork server instead
+        # a running thread (a live view, an application): no fork, the fork server instead,
+        # which start_workers starts ahead of the first call
         assert _process_context().get_start_method() == "forkserver"
+        from multiprocessing import forkserver
+
+        from polcam.separation.tensor import start_workers
+
+        assert start_workers() == "forkserver" and forkserver._forkserver._forkserver_pid
         with_thread = separate(stack, method="tensor", tile=12, overlap=4, workers=2)
     finally:
         release.set()
