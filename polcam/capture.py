@@ -61,7 +61,7 @@ import cv2
 import numpy as np
 
 from polcam.camera.base import TRIGGER_MODES, Camera, CameraSettingError, open_camera
-from polcam.errors import CameraUnavailableError, LayoutError, MethodError, PolcamError
+from polcam.errors import LayoutError, MethodError, PolcamError
 from polcam.frame import Frame
 from polcam.mosaic import Layout
 
@@ -1186,14 +1186,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     add_capture_parser(sub)
     args = parser.parse_args(["capture", *(sys.argv[1:] if argv is None else argv)])
-    try:
-        return int(args.func(args) or 0)
-    except CameraUnavailableError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 3
-    except PolcamError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    from polcam.cli import run_command
+
+    return run_command(args)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -526,8 +526,18 @@ def reference_markdown() -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``polcam`` and ``python -m polcam``."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    return run_command(build_parser().parse_args(argv))
+
+
+def run_command(args: argparse.Namespace) -> int:
+    """Run a parsed command (its ``func``) and map errors to exit statuses.
+
+    0 or the command's own status; 3 when a camera is unavailable (Aravis
+    missing, no such camera, busy); 2 for any other :class:`PolcamError`
+    (the message on stderr); 130 when interrupted.  The standalone entry
+    points (``python -m polcam.capture``, ``python -m polcam.calibration``)
+    use it too.
+    """
     try:
         return int(args.func(args) or 0)
     except CameraUnavailableError as exc:

@@ -38,7 +38,6 @@ import numpy as np
 
 from polcam.calibration.estimate import calibrate_dark, calibrate_flat, calibrate_polarizer, check_angles
 from polcam.calibration.store import Calibration, CalibrationError, load_calibration, save_calibration
-from polcam.errors import PolcamError
 from polcam.frame import Frame
 
 if TYPE_CHECKING:
@@ -597,8 +596,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         args_list = ["calibrate", *args_list]
     args = parser.parse_args(args_list)
     del cal
-    try:
-        return int(args.func(args) or 0)
-    except PolcamError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    from polcam.cli import run_command
+
+    return run_command(args)

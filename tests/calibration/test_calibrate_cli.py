@@ -389,3 +389,11 @@ def test_dark_from_the_aravis_fake_camera(tmp_path, capsys):
         y, x = np.mgrid[0:32, 0:64]
         ramp = ((x + y + side["frame_id"]) % 255).astype(np.uint8)
         np.testing.assert_array_equal(np.frombuffer(path.read_bytes(), np.uint8).reshape(32, 64), ramp)
+
+
+def test_standalone_command_exits_3_for_a_camera_that_is_not_there(tmp_path, capsys):
+    # the same exit statuses as `polcam calibrate`: 3 when the camera cannot be had, and no file
+    out = tmp_path / "dark.npz"
+    rc = main(["dark", "--device", f"replay:{tmp_path / 'missing'}", "--frames", "2", "-o", str(out)])
+    assert rc == 3 and "does not exist" in capsys.readouterr().err
+    assert not out.exists()
