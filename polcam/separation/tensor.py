@@ -1094,11 +1094,11 @@ def _tile_plan(h: int, w: int, tile: int | tuple[int, int] | None, overlap: int,
     integer asks for square tiles, a pair for (height, width).  A side at least
     the image's is that whole side (one tile along it).
     """
-    if tile is None:
+    auto = tile is None
+    if auto:
         if solver == "exact" or h * w <= AUTO_UNTILED_PIXELS:
             return (h, w), 0
-        _, overlap = _tile_plan(h, w, AUTO_TILE, overlap, solver)  # checks the overlap
-        tile = (_fit_side(h, AUTO_TILE[0], overlap), _fit_side(w, AUTO_TILE[1], overlap))
+        tile = AUTO_TILE
     pair = tuple(tile) if isinstance(tile, (tuple, list)) else (tile,) * 2
     if len(pair) != 2 or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 8
                                  for v in pair):
@@ -1108,7 +1108,10 @@ def _tile_plan(h: int, w: int, tile: int | tuple[int, int] | None, overlap: int,
     if (not isinstance(overlap, (int, np.integer)) or isinstance(overlap, bool) or overlap < 0
             or overlap >= small // 2):
         raise MethodError(f"overlap = {overlap!r}: expected an integer in 0 .. {small // 2 - 1} for tile {tile!r}")
-    th, tw = min(int(pair[0]), h), min(int(pair[1]), w)
+    if auto:  # the smallest sides that need no more tiles than AUTO_TILE
+        th, tw = _fit_side(h, int(pair[0]), overlap), _fit_side(w, int(pair[1]), overlap)
+    else:
+        th, tw = min(int(pair[0]), h), min(int(pair[1]), w)
     if th >= h and tw >= w:
         return (h, w), 0
     return (th, tw), int(overlap)
