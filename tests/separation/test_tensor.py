@@ -32,19 +32,19 @@ def tprod(a, b):
 
 
 def _planted_trpca():
-    """Tubal rank 2 (40 x 40 x 5) plus 5 % gross corruptions of +-2, and TRPCA's lambda."""
+    """Tubal rank r = 2 (40 x 40 x 5) plus 5 % gross corruptions of +-2; (L0, S0, TRPCA's lambda, r)."""
     rng = np.random.default_rng(0)
     n, n3, r = 40, 5, 2
     L0 = tprod(rng.normal(size=(n, r, n3)) / np.sqrt(n), rng.normal(size=(r, n, n3)))
     S0 = np.zeros_like(L0)
     mask = rng.random(L0.shape) < 0.05
     S0[mask] = rng.choice([-1.0, 1.0], mask.sum()) * 2
-    return L0, S0, 1 / np.sqrt(n * n3)
+    return L0, S0, 1 / np.sqrt(n * n3), r
 
 
 def test_ialm_recovers_a_planted_low_tubal_rank_plus_sparse_tensor():
     """TRPCA exact recovery (Lu et al. 2020): tubal rank 2, 5% gross corruptions."""
-    L0, S0, lam = _planted_trpca()
+    L0, S0, lam, r = _planted_trpca()
     L, S, info = ialm(L0 + S0, tau=None, lam=lam, gamma=0.0, rho=1.1, tol=1e-8, max_iter=500)
     assert info["converged"]
     assert np.linalg.norm(L - L0) / np.linalg.norm(L0) < 1e-3
@@ -271,7 +271,7 @@ def test_slice_first_layout_and_phase_projection_match_the_unfolded_ones():
 
 def test_fast_ialm_recovers_the_planted_tensor_like_the_exact_one():
     """The TRPCA problem of the exact test: both solvers reach the same minimiser (tol 1e-8)."""
-    L0, S0, lam = _planted_trpca()
+    L0, S0, lam, r = _planted_trpca()
     Le, Se, ie = ialm(L0 + S0, tau=None, lam=lam, gamma=0.0, rho=1.1, tol=1e-8, max_iter=500)
     Lf, Sf, i_f = ialm(L0 + S0, tau=None, lam=lam, gamma=0.0, rho=1.1, tol=1e-8, max_iter=500,
                        solver="fast")
