@@ -143,6 +143,10 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
     from polcam.separation.tensor import start_workers
 
     opts = dict(case.get("options", {}))
+    if opts.get("device"):
+        from polcam.separation._torch import warm_up
+
+        warm_up(opts["device"])        # the device's one-off start stays out of the figure
     truth = None
     if case["kind"] == "scene":
         from polcam.synth.render import render

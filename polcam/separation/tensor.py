@@ -1149,29 +1149,122 @@ def _solve_tile(d0: np.ndarray, tw: np.ndarray | None, *, lam: float | None, gam
     return (L[0].reshape(4, n1, 3, n2).mean(axis=0, dtype=np.float64).transpose(0, 2, 1), lam_t, rec)
 
 
-def _solve_tiles_torch(d0: np.ndarray, tw: np.ndarray | None, windows: list[tuple[slice, slice]], *,
-                       lam: float | None, gamma: float, opt: dict[str, Any], tol: float
-                       ) -> list[tuple[np.ndarray, float, dict[str, Any]]]:
-    """Every tile's problem with the PyTorch backend, :data:`DEVICE_BATCH` tiles per call."""
-    from polcam.separation import _torch
+def _device_batch(tiles: int, per_tile: int, device: Any) -> int:
+    """Tiles per IALM call on a torch device: as many as fit in a third of its free memory.
 
-    out = []
-    for start in range(0, len(windows), DEVICE_BATCH):
-        chunk = windows[start:start + DEVICE_BATCH]
-        n1 = chunk[0][0].stop - chunk[0][0].start
-        n2 = chunk[0][1].stop - chunk[0][1].start
-        n4 = d0.shape[0]
-        lam_t = lam if lam is not None else 1.0 / np.sqrt(max(4 * n1, 3 * n2) * n4)
-        D = np.stack([unfold_slices(d0[:, :, r, c]) for r, c in chunk]).astype(opt["precision"])
-        tau = None if tw is None else np.stack([unfold_slices(tw[None, :, r, c]) for r, c in chunk])
-        L, recs = _torch.ialm_batch(D, tau=tau, lam=lam_t, gamma=gamma, shape=(n1, n2),
-                                    device=opt["device"], rho=opt["rho"], mu0=opt["mu0"],
-                                    mu_max=opt["mu_max"], tol=tol, max_iter=opt["max_iter"],
-                                    dtype=opt["precision"])
-        for i, rec in enumerate(recs):
-            dl = L[i, 0].reshape(4, n1, 3, n2).mean(axis=0, dtype=np.float64).transpose(0, 2, 1)
-            out.append((dl, lam_t, rec))
-    return out
+    ``per_tile`` is the bytes of one tile's tensor; the IALM holds about 24 of
+    them.  On the CPU, :data:`DEVICE_BATCH` tiles.
+    """
+    import torch
+
+    if device.type != "cuda":
+        return max(1, min(tiles, DEVICE_BATCH))
+    free, _ = torch.cuda.mem_get_info(device)
+    return max(1, min(tiles, int(free / 3 // (24 * per_tile))))
+
+
+def _separate_device(stack: np.ndarray, *, opt: dict[str, Any], tile: tuple[int, int], overlap: int,
+                     tol: float, gamma: float, use_tau: bool, shared: bool, workers: int
+                     ) -> tuple[np.ndarray, np.ndarray, float, float, list[tuple[float, dict[str, Any]]],
+                                dict[str, float]]:
+    """Steps 1-7 of :func:`separate_tensor` on a PyTorch device (``device=`` option).
+
+    Every step runs on the device (:mod:`polcam.separation._torch_prep`) except an
+    initial diffuse other than Yang'10, which runs in numpy; the tiles go to the
+    IALM in as few batches as the device's memory allows.
+
+    Returns
+    -------
+    diffuse_w : numpy.ndarray
+        (H, W, 3) float64, the blended diffuse of the white-balanced, scaled image.
+    gam : numpy.ndarray
+        (3,) illuminant chromaticity.
+    scale : float
+        The scale the white-balanced image was divided by.
+    filled : float
+        Share of representation slots filled (:func:`representations`).
+    records : list
+        (lambda, IALM record) per tile.
+    timings : dict
+        Seconds of each step (illuminant, representations, init, ialm).
+    """
+    import torch
+
+    from polcam.separation import _torch, _torch_prep
+
+    dev = torch.device(opt["device"])
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    _, h, w, _ = stack.shape
+    x = torch.as_tensor(np.ascontiguousarray(stack), device=dev).to(torch.float64)
+    ill = opt["illuminant"]
+    if isinstance(ill, str):
+        if ill == "polarization":
+            gam = _torch_prep.estimate_illuminant(x)
+        elif ill == "white":
+            gam = np.full(3, 1 / 3)
+        else:
+            raise MethodError(f"illuminant {ill!r}: expected 'polarization', 'white' or an RGB triple")
+    else:
+        gam = np.asarray(ill, dtype=np.float64)
+        gam = gam / gam.sum()
+    g = np.asarray(gam, dtype=np.float64).reshape(3)
+    if np.any(g <= 0):
+        raise MethodError(f"illuminant chromaticity {g.tolist()}: expected three positive values")
+    x = x / torch.as_tensor(3.0 * (g / g.sum()), device=dev)
+    scale = float(max(float(x.max()), 1.0))
+    x = x / scale
+    sync()
+    timings["illuminant"] = time.perf_counter() - t0
+
+    t = time.perf_counter()
+    wdt = torch.float32 if opt["precision"] == "float32" else torch.float64
+    xw = x.to(wdt)
+    chro = _torch_prep.polarization_chromaticity(x)
+    rng = np.random.default_rng(opt["seed"])
+    offsets, filled = _torch_prep.representations(chro, n4=opt["n4"], block=opt["block"],
+                                                  threshold=opt["threshold"], rng=rng)
+    del x, chro
+    sync()
+    timings["representations"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    images = xw[None] if shared else _torch_prep.gather(xw, offsets)     # (1 or n4, 4, H, W, 3)
+    if opt["init"] == "yang10":
+        first = torch.stack([torch.stack([_torch_prep.yang10(images[i, a]).to(wdt) for a in range(4)])
+                             for i in range(images.shape[0])])
+    else:
+        host = images.cpu().numpy()
+        first = torch.as_tensor(initial_diffuse(host, init=opt["init"], workers=workers), device=dev).to(wdt)
+    d0 = _torch_prep.gather(first[0], offsets) if shared else first
+    del images, first, offsets, xw
+    sync()
+    timings["init"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    tw = (_torch_prep.tau_weights(d0[0], alpha=opt["alpha"], beta=opt["beta"], floor=opt["tau_floor"])
+          if use_tau else None)
+    ys, xs = tile_spans(h, tile[0], overlap), tile_spans(w, tile[1], overlap)
+    n4 = d0.shape[0]
+    n1, n2 = ys[0][1] - ys[0][0], xs[0][1] - xs[0][0]
+    lam_t = opt["lam"] if opt["lam"] is not None else 1.0 / np.sqrt(max(4 * n1, 3 * n2) * n4)
+    rows_per = max(1, _device_batch(len(ys) * len(xs), n4 * 12 * n1 * n2 * d0.element_size(), dev) // len(xs))
+    results, records = [], []
+    for r0 in range(0, len(ys), rows_per):
+        part = ys[r0:r0 + rows_per]
+        D = _torch_prep.tile_batch(d0, part, xs)
+        tau = None if tw is None else _torch_prep.tile_batch(tw[None], part, xs)
+        L, recs = _torch.ialm_tensors(D, tau=tau, lam=lam_t, gamma=gamma, shape=(n1, n2), rho=opt["rho"],
+                                      mu0=opt["mu0"], mu_max=opt["mu_max"], tol=tol, max_iter=opt["max_iter"])
+        del D, tau
+        b = L.shape[0]
+        results.append(L[:, 0].reshape(b, 4, n1, 3, n2).to(torch.float64).mean(dim=1).permute(0, 1, 3, 2))
+        records += [(lam_t, rec) for rec in recs]
+        del L
+    diffuse_w = _torch_prep.blend((h, w), ys, xs, torch.cat(results)).cpu().numpy()
+    timings["ialm"] = time.perf_counter() - t
+    return diffuse_w, gam, scale, filled, records, timings
 
 
 def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: Any
@@ -1240,6 +1333,17 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     timings: dict[str, float] = {}
     _, h, w, _ = stack.shape
     tile, overlap = _tile_plan(h, w, opt["tile"], opt["overlap"], opt["solver"])
+    n4 = opt["n4"]
+    use_tau = variant in ("tensor", "tensor-tau")
+    gamma = opt["gamma"] if variant == "tensor" else 0.0
+    shared = opt["shared_init"] if opt["shared_init"] is not None else opt["solver"] == "fast"
+    if opt["device"] is not None:
+        diffuse_w, gam, scale, filled, records, timings = _separate_device(
+            stack, opt=opt, tile=tile, overlap=overlap, tol=tol, gamma=gamma, use_tau=use_tau,
+            shared=shared, workers=workers)
+        return _finish(diffuse_w, gam=gam, scale=scale, filled=filled, records=records, timings=timings,
+                       variant=variant, opt=opt, tol=tol, gamma=gamma, shape=(h, w),
+                       tile=None if tile == (h, w) else (tile[0], tile[1], overlap))
 
     # 1. illuminant
     ill = opt["illuminant"]
@@ -1262,7 +1366,6 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     # (half the memory of a full frame; Yang'10 computes in float64 either way)
     single = opt["solver"] == "fast" and opt["precision"] == "float32"
     xw = x.astype(np.float32) if single else x
-    shared = opt["shared_init"] if opt["shared_init"] is not None else opt["solver"] == "fast"
     # worker processes only where the runs are long enough to pay for starting them
     # (and not beyond INIT_PROCESS_PIXELS: a Yang'10 run on a 5 Mpixel image held ~1.4 GB)
     init_workers = workers if 256 * 256 <= h * w <= INIT_PROCESS_PIXELS else 1
@@ -1314,9 +1417,6 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
 
     # 6-7. tensor and IALM, per tile
     t = time.perf_counter()
-    n4 = opt["n4"]
-    use_tau = variant in ("tensor", "tensor-tau")
-    gamma = opt["gamma"] if variant == "tensor" else 0.0
     tw = tau_weights(d0[0], alpha=opt["alpha"], beta=opt["beta"], floor=opt["tau_floor"]) if use_tau else None
     records: list[tuple[float, dict[str, Any]]] = []
 
@@ -1324,12 +1424,7 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     # one BLAS thread: OpenBLAS' threaded complex SVD of these slice sizes was 12 times
     # slower than the single-threaded one on the 2-core machine (docs/benchmarks.md); the
     # Fourier slices (one tile) or the tiles (worker processes) run in parallel instead
-    if opt["device"] is not None:
-        windows = tile_windows((h, w), tile, overlap) if not one_tile else [(slice(0, h), slice(0, w))]
-        out = _solve_tiles_torch(d0, tw, windows, lam=opt["lam"], gamma=gamma, opt=opt, tol=tol)
-        records = [(lam_t, rec) for _, lam_t, rec in out]
-        diffuse_w = out[0][0] if one_tile else blend((h, w), tile, overlap, [o[0] for o in out])
-    elif one_tile:
+    if one_tile:
         with threadpool_limits(limits=1, user_api="blas"):
             diffuse_w, lam_t, rec = _solve_tile(d0, tw, lam=opt["lam"], gamma=gamma, opt=opt, tol=tol,
                                                 threads=workers)
@@ -1348,6 +1443,17 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
         diffuse_w = blend((h, w), tile, overlap, [o[0] for o in out])
     timings["ialm"] = time.perf_counter() - t
 
+    return _finish(diffuse_w, gam=gam, scale=scale, filled=filled, records=records, timings=timings,
+                   variant=variant, opt=opt, tol=tol, gamma=gamma, shape=(h, w),
+                   tile=None if one_tile else (tile[0], tile[1], overlap))
+
+
+def _finish(diffuse_w: np.ndarray, *, gam: np.ndarray, scale: float, filled: float,
+            records: list[tuple[float, dict[str, Any]]], timings: dict[str, float], variant: str,
+            opt: dict[str, Any], tol: float, gamma: float, shape: tuple[int, int],
+            tile: tuple[int, int, int] | None) -> tuple[np.ndarray, dict[str, Any]]:
+    """Step 8 of :func:`separate_tensor` and its info dict."""
+    h, w = shape
     # 8. diffuse: representation 1, mean over angles, back to the input's illuminant
     diffuse = diffuse_w * scale * (3.0 * gam)
     slowest = max(records, key=lambda r: r[1]["iterations"])[1]
@@ -1365,8 +1471,8 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
         "lambda": records[0][0] if len(records) == 1 else [r[0] for r in records],
         "gamma": gamma,
         "representations_filled": filled,
-        "tensor_shape": [4 * h, 3 * w, n4],
-        "tile": None if one_tile else [tile[0], tile[1], overlap],
+        "tensor_shape": [4 * h, 3 * w, opt["n4"]],
+        "tile": None if tile is None else list(tile),
         "tiles": len(records),
         "timings": timings,
         "iterations": slowest["iterations"],
