@@ -66,6 +66,8 @@ class SpeedRow:
     load: tuple[float, float] = (float("nan"), float("nan"))
     options: dict[str, Any] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+    device: str = ""                      # the torch device's name (fast solver with device=)
+    device_peak_mb: float = float("nan")  # its largest allocation (CUDA), MB
     error: str = ""
 
 
@@ -143,10 +145,18 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
     from polcam.separation.tensor import start_workers
 
     opts = dict(case.get("options", {}))
+    device_name, cuda = "", False
     if opts.get("device"):
+        import torch
+
         from polcam.separation._torch import warm_up
 
         warm_up(opts["device"])        # the device's one-off start stays out of the figure
+        dev = torch.device(opts["device"])
+        cuda = dev.type == "cuda"
+        device_name = torch.cuda.get_device_name(dev) if cuda else str(dev)
+        if cuda:
+            torch.cuda.reset_peak_memory_stats(dev)
     truth = None
     if case["kind"] == "scene":
         from polcam.synth.render import render
@@ -170,6 +180,11 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
             stack = demosaic(raw, layout="imx250myr", method="bilinear", resolution=case["resolution"])
             res = separate(stack, method="tensor", **opts)
             seconds = time.perf_counter() - t0
+    device_peak = float("nan")
+    if cuda:
+        import torch
+
+        device_peak = torch.cuda.max_memory_allocated(torch.device(opts["device"])) / 2**20
     peak = mem.peak
     if peak != peak:                       # no /proc: the largest resident set (this process)
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -182,6 +197,7 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
         "tiles": int(info.get("tiles", 1)), "peak_mb": peak,
         "psnr": psnr(np.clip(res.diffuse, 0, 1), truth) if truth is not None else float("nan"),
         "timings": {k: float(v) for k, v in info.get("timings", {}).items()},
+        "device": device_name, "device_peak_mb": device_peak,
     }
 
 
@@ -274,7 +290,8 @@ def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bun
                            seconds=got["seconds"], iterations=got["iterations"],
                            converged=got["converged"], tiles=got["tiles"], peak_mb=got["peak_mb"],
                            psnr=got["psnr"], load=(before, _load()), options=dict(case["options"]),
-                           timings=got["timings"])
+                           timings=got["timings"], device=got.get("device", ""),
+                           device_peak_mb=got.get("device_peak_mb", float("nan")))
             if solver == "exact":
                 exact_rows[label] = (row, path)
             elif label in exact_rows and not math.isnan(exact_rows[label][0].seconds):
@@ -297,7 +314,13 @@ def _f(x: float, fmt: str) -> str:
 def _line(r: SpeedRow) -> str:
     return (f"  {r.case:<32} {r.solver:<14} {r.seconds:8.2f} s  x{_f(r.speedup, '.1f'):>5}  "
             f"PSNR {_f(r.psnr, '.2f')} (d {_f(r.psnr_delta, '+.3f')})  it {r.iterations}  "
-            f"tiles {r.tiles}  peak {r.peak_mb:.0f} MB  load {r.load[0]:.1f}/{r.load[1]:.1f}")
+            f"tiles {r.tiles}  peak {_peak(r)} MB  load {r.load[0]:.1f}/{r.load[1]:.1f}")
+
+
+def _peak(r: SpeedRow) -> str:
+    """Host peak memory, and the device's beside it where one was used."""
+    gpu = "" if math.isnan(r.device_peak_mb) else f" + GPU {r.device_peak_mb:.0f}"
+    return f"{r.peak_mb:.0f}{gpu}"
 
 
 def format_markdown(rows: Sequence[SpeedRow]) -> str:
@@ -312,7 +335,7 @@ def format_markdown(rows: Sequence[SpeedRow]) -> str:
         lines.append(
             f"| {r.case} | {r.solver} | {r.height} x {r.width} | {r.seconds:.2f} | "
             f"{_f(r.speedup, '.1f')} | {_f(r.psnr, '.2f')} | {_f(r.psnr_delta, '+.3f')} | "
-            f"{_f(r.psnr_vs_exact, '.1f')} | {r.iterations} | {r.tiles} | {r.peak_mb:.0f} | "
+            f"{_f(r.psnr_vs_exact, '.1f')} | {r.iterations} | {r.tiles} | {_peak(r)} | "
             f"{r.load[0]:.1f} / {r.load[1]:.1f} |")
     return "\n".join(lines)
 
@@ -348,6 +371,9 @@ def run_args(a: argparse.Namespace) -> int:
     rows = run(sizes=a.sizes, scenes=a.scenes, exact_max=a.exact_max, frame=not a.no_frame,
                full_resolution=a.full_resolution, frame_scene=a.frame_scene, options=options,
                seed=a.seed)
+    names = sorted({r.device for r in rows if r.device})
+    if names:
+        print(f"device: {', '.join(names)}")
     print(format_markdown(rows))
     if a.json:
         from polcam.io.atomic import atomic_write

@@ -38,6 +38,9 @@ _lock = threading.Lock()
 _lib: Any = None
 _tried = False
 _handles: dict[tuple[int, int], tuple[ctypes.c_void_p, ctypes.c_void_p]] = {}
+#: Largest side sent to the batched call: on an H100 it took 54 ms for two real 768 x 768
+#: matrices, PyTorch's one-at-a-time path 17 ms (and 4 ms for 902 of side 96, against 1.1 s).
+BATCHED_MAX_N = 256
 #: Matrices the batched call failed on, decomposed again in double precision (a count).
 fallbacks = 0
 #: Largest accepted ||G V - V diag(w)||_max / ||G||_max of a batched result (single, double precision).
@@ -132,7 +135,8 @@ def eigh(g: Any, *, vectors: bool = True) -> tuple[Any, Any]:
 
     lib = _load() if g.is_cuda and g.ndim == 3 else None
     name = str(g.dtype).removeprefix("torch.")
-    if lib is None or name not in _CUDA_TYPE or g.shape[0] * g.shape[1] * g.shape[2] >= 2**31:
+    if (lib is None or name not in _CUDA_TYPE or g.shape[-1] > BATCHED_MAX_N
+            or g.shape[0] * g.shape[1] * g.shape[2] >= 2**31):
         if vectors:
             return torch.linalg.eigh(g)
         return torch.linalg.eigvalsh(g), None

@@ -50,3 +50,18 @@ def test_full_frame_raw_is_a_sensor_frame():
     raw = _full_frame_raw("Bunny5", 0)
     assert raw.shape == (2048, 2448) and raw.dtype == np.float32
     assert 0 <= raw.min() and raw.max() <= 1
+
+
+def test_device_rows_name_the_device():
+    torch = pytest.importorskip("torch")
+    dev = "cuda" if torch.cuda.is_available() else "cpu"
+    rows = run(sizes=(24,), scenes=("Bunny4",), exact_max=0, frame=False, isolate=False, progress=False,
+               options={"device": dev})
+    (row,) = rows
+    assert row.options == {"solver": "fast", "device": dev} and row.converged
+    if dev == "cuda":
+        assert row.device == torch.cuda.get_device_name() and row.device_peak_mb > 0
+        assert "+ GPU" in format_markdown(rows)
+    else:
+        assert row.device == "cpu" and np.isnan(row.device_peak_mb)
+        assert "+ GPU" not in format_markdown(rows)

@@ -42,11 +42,14 @@ def test_cpu_tensors_use_torch(dtype):
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 @pytest.mark.parametrize("dtype,rtol", [(torch.float32, 2e-5), (torch.complex64, 2e-5),
                                         (torch.float64, 1e-12), (torch.complex128, 1e-12)])
-@pytest.mark.parametrize("n", [5, 40, 96])
+@pytest.mark.parametrize("n", [5, 40, 96, 300])
 def test_cuda_batched_eigh(dtype, rtol, n):
     assert _cusolver.available()
     g = _hermitian(37, n, dtype, "cuda")
     w, v = _cusolver.eigh(g)
+    # a backward-stable eigensolver's error grows like n eps (above BATCHED_MAX_N this is
+    # PyTorch's own path: in float32 at n = 300 it exceeded 2e-5 of ||G|| on an H100)
+    rtol = max(rtol, 4 * n * torch.finfo(w.dtype).eps)
     _check(g, w, v, rtol)
     w2, _ = _cusolver.eigh(g, vectors=False)
     torch.testing.assert_close(w2, w, rtol=rtol, atol=rtol * float(w.abs().max()))
