@@ -214,11 +214,27 @@ def estimate_illuminant(stack: np.ndarray, *, significance: float = 5.0) -> np.n
 
 def normalize_illuminant(stack: np.ndarray, gamma: np.ndarray) -> np.ndarray:
     """``I / (3 Gamma)`` per channel: the image under a white illuminant."""
+    return stack / _white_divisor(gamma)
+
+
+def _white_divisor(gamma: Any) -> np.ndarray:
+    """``3 Gamma`` (Gamma normalised to sum 1), checked: what :func:`normalize_illuminant` divides by."""
     g = np.asarray(gamma, dtype=np.float64).reshape(3)
     if np.any(g <= 0):
         raise MethodError(f"illuminant chromaticity {g.tolist()}: expected three positive values")
-    g = g / g.sum()
-    return stack / (3.0 * g)
+    return 3.0 * (g / g.sum())
+
+
+def _choose_illuminant(ill: Any, estimate: Callable[[], np.ndarray]) -> np.ndarray:
+    """The ``illuminant`` option as a chromaticity: ``estimate()``, white, or the given RGB triple."""
+    if isinstance(ill, str):
+        if ill == "polarization":
+            return estimate()
+        if ill == "white":
+            return np.full(3, 1 / 3)
+        raise MethodError(f"illuminant {ill!r}: expected 'polarization', 'white' or an RGB triple")
+    gam = np.asarray(ill, dtype=np.float64)
+    return gam / gam.sum()
 
 
 # ---------------------------------------------------------------------------
@@ -1198,21 +1214,8 @@ def _separate_device(stack: np.ndarray, *, opt: dict[str, Any], tile: tuple[int,
     timings: dict[str, float] = {}
     _, h, w, _ = stack.shape
     x = torch.as_tensor(np.ascontiguousarray(stack), device=dev).to(torch.float64)
-    ill = opt["illuminant"]
-    if isinstance(ill, str):
-        if ill == "polarization":
-            gam = _torch_prep.estimate_illuminant(x)
-        elif ill == "white":
-            gam = np.full(3, 1 / 3)
-        else:
-            raise MethodError(f"illuminant {ill!r}: expected 'polarization', 'white' or an RGB triple")
-    else:
-        gam = np.asarray(ill, dtype=np.float64)
-        gam = gam / gam.sum()
-    g = np.asarray(gam, dtype=np.float64).reshape(3)
-    if np.any(g <= 0):
-        raise MethodError(f"illuminant chromaticity {g.tolist()}: expected three positive values")
-    x = x / torch.as_tensor(3.0 * (g / g.sum()), device=dev)
+    gam = _choose_illuminant(opt["illuminant"], lambda: _torch_prep.estimate_illuminant(x))
+    x = x / torch.as_tensor(_white_divisor(gam), device=dev)
     scale = float(max(float(x.max()), 1.0))
     x = x / scale
     sync()
@@ -1346,17 +1349,7 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
                        tile=None if tile == (h, w) else (tile[0], tile[1], overlap))
 
     # 1. illuminant
-    ill = opt["illuminant"]
-    if isinstance(ill, str):
-        if ill == "polarization":
-            gam = estimate_illuminant(stack)
-        elif ill == "white":
-            gam = np.full(3, 1 / 3)
-        else:
-            raise MethodError(f"illuminant {ill!r}: expected 'polarization', 'white' or an RGB triple")
-    else:
-        gam = np.asarray(ill, dtype=np.float64)
-        gam = gam / gam.sum()
+    gam = _choose_illuminant(opt["illuminant"], lambda: estimate_illuminant(stack))
     x = normalize_illuminant(stack, gam)
     scale = float(max(x.max(), 1.0))
     x = x / scale  # keep the white-balanced stack in [0, 1]

@@ -124,3 +124,19 @@ def test_device_pipeline_other_init_and_unshared(stack, dev):
     a = separate(small, method="tensor", init="shen09", shared_init=False, workers=1)
     b = separate(small, method="tensor", init="shen09", shared_init=False, device=dev)
     assert psnr(b.diffuse, a.diffuse) > 70
+
+
+@pytest.mark.parametrize("dev", DEVICES)
+def test_device_pipeline_illuminant_options(stack, dev):
+    from polcam.errors import MethodError
+
+    small = stack[:, :24, :24]
+    for ill in ("white", (0.5, 0.3, 0.2)):
+        a = separate(small, method="tensor", illuminant=ill, workers=1)
+        b = separate(small, method="tensor", illuminant=ill, device=dev)
+        np.testing.assert_allclose(b.info["illuminant_chromaticity"], a.info["illuminant_chromaticity"])
+        assert psnr(b.diffuse, a.diffuse) > 70
+    with pytest.raises(MethodError, match="illuminant 'blue'"):
+        separate(small, method="tensor", illuminant="blue", device=dev)
+    with pytest.raises(MethodError, match="three positive values"):
+        separate(small, method="tensor", illuminant=(0.5, 0.6, -0.1), device=dev)
