@@ -5,13 +5,19 @@ Install with the ``torch`` extra (``pip install polcam[torch]``, pinned to
 run time by the ``device`` option of the tensor methods; numpy stays the
 default backend and the reference of this one.
 
-:func:`ialm_batch` runs the IALM of :func:`polcam.separation.tensor.ialm_fast`
-on a batch of equally sized tiles at once (one tensor problem per tile, each
-with its own mu, threshold, residual and stopping iteration), which is what a
-GPU needs to be busy.  The t-SVT of every Fourier slice is computed from the
-eigenpairs of its Gram matrix (``torch.linalg.eigh``, batched over the tiles),
-the same operator as the numpy solver's full path; the phase projection is
-:func:`polcam.separation.tensor.phase_project_slices` in torch.
+:func:`ialm_tensors` runs the IALM of :func:`polcam.separation.tensor.ialm_fast`
+(the same scaled form) on a batch of equally sized tiles at once (one tensor
+problem per tile, each with its own mu, threshold, residual and stopping
+iteration; a tile that stops leaves the batch), which is what a GPU needs to be
+busy; :func:`ialm_batch` is its numpy-in, numpy-out form.  The t-SVT of every
+Fourier slice is computed from all eigenpairs of its Gram matrix, one batched
+decomposition per slice (:func:`polcam.separation._cusolver.eigh`: cuSOLVER's
+batched solver on CUDA, ``torch.linalg.eigh`` elsewhere), the same operator as
+the numpy solver's full path; the phase projection is
+:func:`polcam.separation.tensor.phase_project_slices` in torch.  The steps
+before and after the IALM run on the device too
+(:mod:`polcam.separation._torch_prep`, driven by
+``polcam.separation.tensor._separate_device``).
 """
 
 from __future__ import annotations

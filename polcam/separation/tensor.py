@@ -42,7 +42,8 @@ initial diffuse, and above :data:`AUTO_UNTILED_PIXELS` pixels overlapping
 tiles in worker processes, :func:`blend`) gives the same diffuse layer within
 0.04 dB of PSNR on the synthetic scenes at 256 x 256, 20 times faster
 (docs/algorithm.md, section 4, "Fast solver"; docs/benchmarks.md); ``device=``
-runs it on PyTorch (:mod:`polcam.separation._torch`).
+runs every step on PyTorch, for GPUs (:mod:`polcam.separation._torch`,
+:mod:`polcam.separation._torch_prep`).
 """
 
 from __future__ import annotations
@@ -148,7 +149,8 @@ AUTO_UNTILED_PIXELS = 256 * 256
 #: (3 x 32 = 96 columns: eigenproblems of 96 instead of 192 for 64 x 64 tiles) at the same
 #: quality (docs/benchmarks.md, Tensor solver speed).
 AUTO_TILE = (96, 32)
-#: Tiles per call of the PyTorch backend (one batched problem on the device).
+#: Tiles per IALM call of the PyTorch backend on a CPU (on a GPU: as many as fit in a third of
+#: its free memory, :func:`_device_batch`).
 DEVICE_BATCH = 64
 #: Most worker processes chosen by ``workers=None`` (each holds a few hundred MB at most).
 MAX_AUTO_WORKERS = 8
@@ -1291,7 +1293,9 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
         ``workers``: worker processes for the initial diffuse and the tiles,
         threads for the Fourier slices of one tile (None: the CPU count, at most
         :data:`MAX_AUTO_WORKERS`); ``device``: None (numpy) or a PyTorch device such as
-        ``"cpu"`` or ``"cuda"`` (needs the ``torch`` extra); ``precision``: the fast
+        ``"cuda"`` or ``"cpu"`` (needs the ``torch`` extra): every step then runs on it
+        (:func:`_separate_device`; an ``init`` other than Yang'10 runs in numpy and is
+        copied over), with the same answer to float32 rounding; ``precision``: the fast
         solver's working precision (``"float32"``, or ``"float64"`` for agreement
         with the exact solver to about 1e-5).
 
