@@ -22,7 +22,6 @@ counts them).
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import threading
 from typing import Any
 
@@ -48,7 +47,11 @@ CHECK_TOL = (1e-3, 1e-9)
 
 
 def _find_library() -> str | None:
-    """Path of the libcusolver PyTorch loaded, else the system's."""
+    """Path of the libcusolver PyTorch loaded (None if it loaded none we can see).
+
+    Only that copy is used: another one on the system may be of another CUDA
+    version than the runtime PyTorch runs on.
+    """
     try:
         with open("/proc/self/maps") as fh:
             for line in fh:
@@ -57,7 +60,7 @@ def _find_library() -> str | None:
                     return path
     except OSError:  # pragma: no cover - not Linux
         pass
-    return ctypes.util.find_library("cusolver")
+    return None
 
 
 def _load() -> Any:
@@ -143,8 +146,8 @@ def eigh(g: Any, *, vectors: bool = True) -> tuple[Any, Any]:
     b, n, _ = g.shape
     # cuSOLVER reads column-major: the row-major buffer of g is g^T = conj(g), whose
     # eigenvectors are the conjugates of g's; written back column-major they read V^H.
-    # An all-zero matrix (a Fourier slice of identical representations) is reported as not
-    # converged: it is decomposed as the identity and its eigenvalues set to 0 after.
+    # Diagonal matrices (a zero Fourier slice, where the representations are identical) need
+    # no decomposition: a stand-in takes their slots and _repair fills them in.
     diag = torch.diagonal(g, dim1=-2, dim2=-1)
     plain = (g - torch.diag_embed(diag)).abs().amax(dim=(-1, -2)) == 0       # diagonal (or zero)
     a = torch.where(plain[:, None, None], _stand_in(n, g), g).contiguous()
@@ -169,10 +172,23 @@ def eigh(g: Any, *, vectors: bool = True) -> tuple[Any, Any]:
                                      host_bytes.value, info.data_ptr(), b)
     if st:
         raise RuntimeError(f"cusolverDnXsyevBatched: status {st} (n={n}, batch={b}, {name})")
-    v = a.mH if vectors else None
+    return _repair(g, plain, w, a.mH if vectors else None, info)
+
+
+def _repair(g: Any, plain: Any, w: Any, v: Any, info: Any) -> tuple[Any, Any]:
+    """The batched call's results made whole.
+
+    ``plain`` marks the diagonal matrices of ``g`` (their slots held a stand-in):
+    they are solved directly.  Every other result is checked, and those that
+    fail or that ``info`` reports as not converged are decomposed again
+    (:func:`_retry`).
+    """
+    import torch
+
+    n = g.shape[-1]
     if bool(plain.any()):
         # a diagonal matrix is its own decomposition: sorted diagonal, permuted unit vectors
-        dw, order = torch.sort(diag.real, dim=-1)
+        dw, order = torch.sort(torch.diagonal(g, dim1=-2, dim2=-1).real, dim=-1)
         w = torch.where(plain[:, None], dw.to(w.dtype), w)
         if v is not None:
             eye = torch.eye(n, dtype=g.dtype, device=g.device)

@@ -78,3 +78,25 @@ def test_cuda_failed_results_are_decomposed_again(monkeypatch):
     w, v = _cusolver.eigh(g)
     assert _cusolver.fallbacks == before + 4
     _check(g, w, v, 1e-5)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.complex64])
+def test_repair_fills_diagonal_slots_and_redoes_failed_results(dtype):
+    # what eigh does after the batched call, on results made here: slot 1 is diagonal (a
+    # stand-in was decomposed there), slot 2 came back with NaN vectors and a success code,
+    # slot 3 with a failure code
+    g = _hermitian(5, 12, dtype, "cpu")
+    g[1] = torch.diag_embed(torch.tensor([2.0, -1, 0, 5, 3, 3, 1, 0, 0, 4, -2, 7])).to(dtype)
+    plain = torch.tensor([False, True, False, False, False])
+    a = torch.where(plain[:, None, None], _cusolver._stand_in(12, g), g)
+    w, v = torch.linalg.eigh(a)
+    v = v.clone()
+    v[2, 3, 4] = float("nan")
+    info = torch.tensor([0, 0, 0, 7, 0], dtype=torch.int32)
+    before = _cusolver.fallbacks
+    w2, v2 = _cusolver._repair(g, plain, w.clone(), v, info)
+    assert _cusolver.fallbacks == before + 2          # slots 2 and 3, not the diagonal one
+    _check(g, w2, v2, 1e-5)
+    wo, none = _cusolver._repair(g, plain, w.clone(), None, info)
+    assert none is None and _cusolver.fallbacks == before + 3   # without vectors: slot 3 only
+    torch.testing.assert_close(wo, w2, rtol=1e-5, atol=1e-5 * float(w2.abs().max()))
