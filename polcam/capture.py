@@ -444,6 +444,9 @@ class LiveProcessor:
         processed frame); other methods run on their own thread on the
         polarizer-cell stack of the newest frame (``polcam.demosaic``
         bilinear, clipped to [0, 1]) whenever the previous run is done.
+    separate_options
+        Keyword options of that method (e.g. ``{"device": "cuda"}`` for the
+        tensor method on a GPU).
     counters
         Shared frame rate / dropped / incomplete numbers to plot.
     workers
@@ -459,12 +462,14 @@ class LiveProcessor:
     """
 
     def __init__(self, layout: Layout, *, sink: Any = None, separate: str | None = None,
+                 separate_options: dict[str, Any] | None = None,
                  counters: _Counters | None = None, workers: int = 2,
                  calibration: Calibration | None = None) -> None:
         self.layout = layout
         self.sink = sink
         self.calibration = calibration
         self.method = separate
+        self.method_options = dict(separate_options or {})
         self.counters = counters or _Counters()
         self.processed = 0
         self.skipped = 0
@@ -582,7 +587,7 @@ class LiveProcessor:
                 stack = np.clip(demosaic(frame, layout=self.layout, method="bilinear", resolution="cell"),
                                 0.0, 1.0)
                 t0 = time.perf_counter()
-                res = separate(stack, method=self.method)  # type: ignore[arg-type]
+                res = separate(stack, method=self.method, **self.method_options)  # type: ignore[arg-type]
                 dt = time.perf_counter() - t0
                 self.separation_seconds.append(dt)
                 self.separations += 1
@@ -681,6 +686,7 @@ def run_capture(
     duration: float | None = None,
     save_format: str = "raw",
     separate: str | None = "imin",
+    separate_options: dict[str, Any] | None = None,
     rerun: str | Path | None = None,
     stop: threading.Event | None = None,
     abort: threading.Event | None = None,
@@ -711,6 +717,9 @@ def run_capture(
         One of :data:`SAVE_FORMATS`.
     separate
         Separation method for the live layers, or ``None``.
+    separate_options
+        Keyword options of that method, checked against it before the camera
+        starts (e.g. ``{"device": "cuda"}``); recorded in the summary.
     rerun
         ``"spawn"``, ``"serve"``, a ``.rrd`` path, or ``None`` (no live view).
     stop, abort
@@ -779,10 +788,16 @@ def run_capture(
             f"camera {camera.camera_id} sends frames without a known polarizer layout: give --layout "
             "(imx250mzr, imx250myr, mono:A,B,C,D, color:A,B,C,D:BAYER), or --separate none without --rerun"
         )
+    if separate_options and separate is None:
+        raise MethodError(f"separation options {sorted(separate_options)} given without a separation method")
     if separate is not None:
         from polcam.separation import method_spec
+        from polcam.separation._registry import check_options
 
         spec = method_spec(separate)
+        check_options(separate, dict(separate_options or {}))
+        if separate == "imin" and separate_options:
+            raise MethodError(f"the live imin layers take no options; got {sorted(separate_options)}")
         if layout is not None and not layout.is_color and not spec.mono:
             from polcam.separation import methods
 
@@ -827,7 +842,8 @@ def run_capture(
     live: LiveProcessor | None = None
     if live_wanted:
         assert layout is not None
-        live = LiveProcessor(layout, sink=sink, separate=separate, counters=counters, workers=live_workers,
+        live = LiveProcessor(layout, sink=sink, separate=separate, separate_options=separate_options,
+                             counters=counters, workers=live_workers,
                              calibration=calibration)
 
     received = 0
@@ -933,6 +949,7 @@ def run_capture(
         "frames_processed": live.processed if live else 0,
         "frames_skipped": live.skipped if live else 0,
         "separation": separate,
+        "separation_options": dict(separate_options or {}),
         "separations": live.separations if live else 0,
         "separations_skipped": live.separations_skipped if live else 0,
         "separation_seconds_mean": (float(np.mean(live.separation_seconds))
@@ -1000,6 +1017,9 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
     c.add_argument("--separate", default="imin",
                    help="separation method for the live layers, or none (default imin: every frame; "
                         "slower methods run on the newest frame whenever the last run is done)")
+    c.add_argument("--separate-option", action="append", metavar="KEY=VALUE",
+                   help="an option of the --separate method, VALUE as JSON (repeatable), e.g. "
+                        "--separate-option device=cuda for the tensor method on a GPU")
     c.add_argument("--rerun", help="live view: spawn (a viewer; needs a display), serve (web viewer), "
                                    "or FILE.rrd")
     c.add_argument("--raw-every", type=int, default=10,
@@ -1127,6 +1147,9 @@ def cmd_capture(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         raise CameraSettingError(f"--duration {args.duration}: expected a positive number of seconds")
     separate = None if str(args.separate).lower() == "none" else args.separate
+    from polcam.cli import parse_option
+
+    separate_options = dict(parse_option(o, flag="--separate-option") for o in args.separate_option or [])
     out: Path | None = None
     if not args.no_save:
         out = args.out or Path("captures") / time.strftime("%Y%m%d-%H%M%S")
@@ -1165,7 +1188,8 @@ def cmd_capture(args: argparse.Namespace) -> int:
 
             summary = run_capture(
                 cam, out=out, frames=args.frames, duration=args.duration, save_format=args.format,
-                separate=separate, rerun=args.rerun, stop=stop, abort=abort, idle_timeout=args.timeout,
+                separate=separate, separate_options=separate_options, rerun=args.rerun, stop=stop,
+                abort=abort, idle_timeout=args.timeout,
                 software_trigger=trigger == "software", append=args.append,
                 save_workers=args.save_workers, raw_every=args.raw_every, view_scale=args.view_scale,
                 live_workers=args.live_workers,

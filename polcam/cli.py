@@ -149,9 +149,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
-def _parse_option(text: str) -> tuple[str, Any]:
+def parse_option(text: str, *, flag: str = "--option") -> tuple[str, Any]:
+    """``KEY=VALUE`` of a method-option flag: VALUE as JSON, else the string itself."""
     if "=" not in text:
-        raise PolcamError(f"--option {text!r}: expected KEY=VALUE (VALUE as JSON, e.g. max_iter=50)")
+        raise PolcamError(f"{flag} {text!r}: expected KEY=VALUE (VALUE as JSON, e.g. max_iter=50)")
     key, value = text.split("=", 1)
     try:
         return key.strip(), json.loads(value)
@@ -165,9 +166,15 @@ def cmd_process(args: argparse.Namespace) -> int:
     from polcam import process as proc
 
     opts = proc.ProcessOptions(
-        method=args.method, method_options=dict(_parse_option(o) for o in args.option or []),
+        method=args.method, method_options=dict(parse_option(o) for o in args.option or []),
         layout=args.layout, demosaic=args.demosaic, resolution=args.resolution, format=args.format,
         calibration=str(args.calibration) if args.calibration else None)
+    if args.method is not None or opts.method_options:
+        from polcam.separation._registry import check_options
+
+        # before any work: an unknown method or option would fail every frame
+        # (without --method the options are the colour default's, tensor)
+        check_options(args.method or "tensor", opts.method_options)
     if args.calibration is not None and not args.calibration.is_file():
         print(f"error: calibration file {args.calibration} not found", file=sys.stderr)
         return 2

@@ -266,6 +266,43 @@ def test_replay_capture_with_separation_writes_the_rerun_recording(tmp_path, met
         assert len(frames["/stats/separation_seconds"]) == summary["separations"]
 
 
+def test_separation_options_reach_the_live_method_and_are_checked_first(tmp_path):
+    folder, _ = _replay_folder(tmp_path, "synthetic_bunny5", n=2)
+    # a device name no backend accepts: each live run fails on it, so the errors prove the
+    # option reached the method (with or without PyTorch installed)
+    with ReplayCamera(folder) as cam:
+        summary = run_capture(cam, out=None, separate="tensor", separate_options={"device": "nonsense"})
+    assert summary["separation_options"] == {"device": "nonsense"}
+    assert summary["separations"] == 0 and summary["separation_errors"]
+    assert all("device 'nonsense'" in e for e in summary["separation_errors"])
+    # a valid option: separations run, and the summary records it
+    with ReplayCamera(folder) as cam:
+        summary = run_capture(cam, out=None, separate="tensor", separate_options={"max_iter": 3})
+    assert summary["separations"] >= 1 and summary["separation_errors"] == []
+    assert summary["separation_options"] == {"max_iter": 3}
+    # refused before the camera starts: nothing is written
+    for sep, opts, match in [("tensor", {"speed": 9}, "takes no option 'speed'"),
+                             (None, {"max_iter": 3}, "without a separation method")]:
+        out = tmp_path / f"out-{sep}"
+        with ReplayCamera(folder) as cam:
+            with pytest.raises(MethodError, match=match):
+                run_capture(cam, out=out, separate=sep, separate_options=opts)
+        assert not out.exists()
+
+
+def test_cli_separate_option_is_parsed_and_recorded(tmp_path):
+    from polcam.capture import main
+
+    folder, _ = _replay_folder(tmp_path, "synthetic_bunny5", n=2)
+    out = tmp_path / "out"
+    assert main(["--device", f"replay:{folder}", "--frames", "2", "--out", str(out), "--separate", "tensor",
+                 "--separate-option", "max_iter=3", "--separate-option", "tile=[16, 16]", "--quiet"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["separation_options"] == {"max_iter": 3, "tile": [16, 16]}
+    assert main(["--device", f"replay:{folder}", "--frames", "1", "--no-save", "--separate", "tensor",
+                 "--separate-option", "max_iter", "--quiet"]) == 2
+
+
 def test_existing_frames_need_append(tmp_path):
     folder, _ = _replay_folder(tmp_path, "fruits_crop", n=1)
     out = tmp_path / "out"

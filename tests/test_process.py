@@ -50,6 +50,18 @@ def raw_dir(tmp_path, fixtures_dir):
     return d
 
 
+@pytest.mark.parametrize("args,match", [
+    (["--option", "max_itre=5"], "takes no option 'max_itre'"),          # the colour default's (tensor)
+    (["--method", "yang10", "--option", "n4=3"], "method 'yang10' takes no option 'n4'"),
+    (["--method", "tensr"], "separation method 'tensr' is unknown"),
+])
+def test_bad_method_or_option_is_refused_before_any_work(raw_dir, tmp_path, capsys, args, match):
+    out = tmp_path / "out"
+    assert main(["process", str(raw_dir), "-o", str(out), "--quiet", *args]) == 2
+    assert match in capsys.readouterr().err
+    assert not out.exists()
+
+
 def test_outputs_meta_and_summary(raw_dir, tmp_path):
     out = tmp_path / "out"
     assert main(["process", str(raw_dir), "-o", str(out), "--quiet", "--workers", "1",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import inspect
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -55,6 +55,9 @@ class MethodSpec:
         True if the method also accepts monochrome input.
     reference
         Citation of the method's paper.
+    options
+        The option names of a method whose function takes ``**options``
+        (checked before a run); None: read from the function's signature.
     """
 
     name: str
@@ -62,6 +65,7 @@ class MethodSpec:
     kind: str
     mono: bool = False
     reference: str = ""
+    options: tuple[str, ...] | None = None
 
 
 _METHODS: dict[str, MethodSpec] = {}
@@ -71,14 +75,18 @@ _ORDER = ("tensor", "tensor-tau", "tensor-plain", "imin", "wen21", "tan05", "yoo
           "shen08", "shen09", "yang10", "shen13", "akashi16", "yamamoto19")
 
 
-def register(name: str, *, kind: str, mono: bool = False,
-             reference: str = "") -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Decorator registering a separation function under ``name``."""
+def register(name: str, *, kind: str, mono: bool = False, reference: str = "",
+             options: Sequence[str] | None = None) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Decorator registering a separation function under ``name``.
+
+    ``options``: the option names, for a function that takes ``**options``.
+    """
     if kind not in ("single", "stack"):
         raise ValueError(f"method kind {kind!r}: expected 'single' or 'stack'")
 
     def deco(fn: Callable[..., Any]) -> Callable[..., Any]:
-        _METHODS[name] = MethodSpec(name, fn, kind, mono, reference)
+        _METHODS[name] = MethodSpec(name, fn, kind, mono, reference,
+                                    None if options is None else tuple(options))
         return fn
 
     return deco
@@ -129,16 +137,24 @@ def _as_input(images: Any) -> tuple[np.ndarray, str]:
     return np.clip(arr, 0.0, 1.0, out=np.empty(arr.shape, dtype=np.float64)), form
 
 
+def check_options(method: str, options: dict[str, Any]) -> None:
+    """Refuse options ``method`` does not take (:class:`MethodError`), before running it."""
+    _check_options(method_spec(method), options)
+
+
 def _check_options(spec: MethodSpec, options: dict[str, Any]) -> None:
-    """Refuse keyword options the method's function does not take (unless it takes **kwargs)."""
-    try:
-        params = inspect.signature(spec.fn).parameters
-    except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
-        return
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        return
-    accepted = [n for n, p in list(params.items())[1:]
-                if p.kind in (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)]
+    """Refuse keyword options the method does not take (its declared ``options``, else its signature)."""
+    if spec.options is not None:
+        accepted = list(spec.options)
+    else:
+        try:
+            params = inspect.signature(spec.fn).parameters
+        except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
+            return
+        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+            return
+        accepted = [n for n, p in list(params.items())[1:]
+                    if p.kind in (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)]
     unknown = sorted(set(options) - set(accepted))
     if unknown:
         raise MethodError(

@@ -1485,6 +1485,6 @@ def _finish(diffuse_w: np.ndarray, *, gam: np.ndarray, scale: float, filled: flo
 
 
 for _variant in ("tensor", "tensor-tau", "tensor-plain"):
-    register(_variant, kind="stack", reference=REFERENCE)(
+    register(_variant, kind="stack", reference=REFERENCE, options=tuple(DEFAULTS))(
         functools.partial(separate_tensor, variant=_variant)
     )

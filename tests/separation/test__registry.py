@@ -71,6 +71,30 @@ def test_kind_checks(toy_methods):
         separate(np.zeros((4, 5, 5)), method="_toy_stack")
 
 
+def test_declared_options_of_a_kwargs_method_are_checked_before_it_runs():
+    from polcam.separation._registry import check_options
+
+    calls = []
+
+    def fn(stack, **options):
+        calls.append(options)
+        return stack.mean(axis=0)
+
+    register("_toy_kwargs", kind="stack", options=("alpha", "beta"))(fn)
+    register("_toy_open", kind="stack")(fn)
+    try:
+        check_options("_toy_kwargs", {"alpha": 1})
+        with pytest.raises(MethodError, match="takes no option 'gamma'; its options: alpha, beta"):
+            check_options("_toy_kwargs", {"gamma": 1})
+        with pytest.raises(MethodError, match="takes no option 'gamma'"):
+            separate(np.zeros((4, 4, 4, 3)), method="_toy_kwargs", gamma=1)
+        assert calls == []                                  # refused before the call
+        separate(np.zeros((4, 4, 4, 3)), method="_toy_open", gamma=1)   # undeclared: passed on
+        assert calls == [{"gamma": 1}]
+    finally:
+        del _METHODS["_toy_kwargs"], _METHODS["_toy_open"]
+
+
 def test_unknown_options_are_refused_by_name(toy_methods):
     with pytest.raises(MethodError, match="takes no option 'max_iter'; its options: none"):
         separate(np.zeros((4, 4, 4, 3)), method="imin", max_iter=5)

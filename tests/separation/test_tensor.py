@@ -15,6 +15,7 @@ from polcam.separation.tensor import (
     phase_project,
     polarization_chromaticity,
     representations,
+    separate_tensor,
     tau_weights,
     unfold,
 )
@@ -231,8 +232,11 @@ def test_tensor_refuses_what_it_cannot_use():
         separate(stack[..., 0], method="tensor")
     with pytest.raises(MethodError, match="polarization stack"):
         separate(stack[0], method="tensor")
-    with pytest.raises(MethodError, match="unknown option"):
+    # the dispatcher refuses it first, naming the options (the registered option list)
+    with pytest.raises(MethodError, match="takes no option 'n5'; its options: n4, block"):
         separate(stack, method="tensor", n5=3)
+    with pytest.raises(MethodError, match="unknown option"):          # called directly
+        separate_tensor(stack, n5=3)
 
 
 def test_dark_input_gives_zero():
