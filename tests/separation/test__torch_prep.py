@@ -119,10 +119,11 @@ def test_device_pipeline_matches_numpy_tiled(stack, dev, variant):
 
 
 @pytest.mark.parametrize("dev", DEVICES)
-def test_device_pipeline_other_init_and_unshared(stack, dev):
+@pytest.mark.parametrize("init,shared", [("shen09", False), ("shen09", True), ("yang10", False)])
+def test_device_pipeline_other_init_and_unshared(stack, dev, init, shared):
     small = stack[:, :32, :32]
-    a = separate(small, method="tensor", init="shen09", shared_init=False, workers=1)
-    b = separate(small, method="tensor", init="shen09", shared_init=False, device=dev)
+    a = separate(small, method="tensor", init=init, shared_init=shared, workers=1)
+    b = separate(small, method="tensor", init=init, shared_init=shared, device=dev)
     assert psnr(b.diffuse, a.diffuse) > 70
 
 
