@@ -794,10 +794,10 @@ def run_capture(
         from polcam.separation import method_spec
         from polcam.separation._registry import check_options
 
+        if separate == "imin" and separate_options:  # computed from the live maps, not by separate()
+            raise MethodError(f"the live imin layers take no options; got {sorted(separate_options)}")
         spec = method_spec(separate)
         check_options(separate, dict(separate_options or {}))
-        if separate == "imin" and separate_options:
-            raise MethodError(f"the live imin layers take no options; got {sorted(separate_options)}")
         if layout is not None and not layout.is_color and not spec.mono:
             from polcam.separation import methods
 

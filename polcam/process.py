@@ -235,7 +235,7 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
     from polcam.errors import FrameWriteError
     from polcam.io import write_image
     from polcam.io.atomic import atomic_write
-    from polcam.separation import separate
+    from polcam.separation import method_spec, separate
 
     timings: dict[str, float] = {}
     if opts.calibration:
@@ -250,7 +250,7 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
     timings["stokes"] = time.perf_counter() - t
     t = time.perf_counter()
     run_options = dict(method_options)
-    if _IN_POOL and method in _POOLED_METHODS and "workers" not in run_options:
+    if _IN_POOL and "workers" in (method_spec(method).options or ()) and "workers" not in run_options:
         run_options["workers"] = 1  # the frames are the parallel part here (the answer does not change)
     res = separate(np.clip(stack, 0.0, 1.0), method=method, **run_options)
     timings["separate"] = time.perf_counter() - t
@@ -355,12 +355,9 @@ class RunRecording:
         self._rec.flush()
 
 
-#: True in the worker processes of :func:`run`: the frames run in parallel there, so the tensor
-#: methods solve their tiles in the worker itself instead of starting processes of their own.
+#: True in the worker processes of :func:`run`: the frames run in parallel there, so a method with
+#: a ``workers`` option (the tensor methods) runs with one instead of starting processes of its own.
 _IN_POOL = False
-
-#: Methods with a ``workers`` option (their own worker processes).
-_POOLED_METHODS = ("tensor", "tensor-tau", "tensor-plain")
 
 
 def _init_worker() -> None:

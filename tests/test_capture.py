@@ -282,6 +282,7 @@ def test_separation_options_reach_the_live_method_and_are_checked_first(tmp_path
     assert summary["separation_options"] == {"max_iter": 3}
     # refused before the camera starts: nothing is written
     for sep, opts, match in [("tensor", {"speed": 9}, "takes no option 'speed'"),
+                             ("imin", {"max_iter": 3}, "live imin layers take no options"),
                              (None, {"max_iter": 3}, "without a separation method")]:
         out = tmp_path / f"out-{sep}"
         with ReplayCamera(folder) as cam:

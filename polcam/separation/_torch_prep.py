@@ -83,16 +83,12 @@ def representations(chro: Any, *, n4: int, block: int, threshold: float,
     """
     import torch
 
-    from polcam.errors import MethodError
+    from polcam.separation.tensor import _candidates
 
-    if n4 < 1:
-        raise MethodError(f"n4 = {n4}: expected at least 1 representation")
-    if block < 1 or block % 2 == 0:
-        raise MethodError(f"block = {block}: expected an odd block side >= 1")
+    cand = _candidates(n4, block)
     h, w, _ = chro.shape
     dev = chro.device
     r = block // 2
-    cand = [(dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1) if (dy, dx) != (0, 0)]
     offsets = torch.zeros((n4, h, w, 2), dtype=torch.int64, device=dev)
     if n4 == 1 or not cand:
         return offsets, 0.0

@@ -293,13 +293,9 @@ def representations(chro: np.ndarray, *, n4: int, block: int, threshold: float,
     filled : float
         Share of representation slots filled by a similar neighbour (not p).
     """
-    if n4 < 1:
-        raise MethodError(f"n4 = {n4}: expected at least 1 representation")
-    if block < 1 or block % 2 == 0:
-        raise MethodError(f"block = {block}: expected an odd block side >= 1")
+    cand = _candidates(n4, block)
     h, w, _ = chro.shape
     r = block // 2
-    cand = [(dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1) if (dy, dx) != (0, 0)]
     offsets = np.zeros((n4, h, w, 2), dtype=np.intp)
     if n4 == 1 or not cand:
         return offsets, 0.0
@@ -319,6 +315,21 @@ def representations(chro: np.ndarray, *, n4: int, block: int, threshold: float,
         offsets[i + 1][valid] = cand_arr[order[i][valid]]
     filled = float(np.isfinite(picked).mean()) * take / (n4 - 1)
     return offsets, filled
+
+
+def _candidates(n4: int, block: int) -> list[tuple[int, int]]:
+    """The (dy, dx) offsets of a block's pixels other than its centre, after checking n4 and block."""
+    if n4 < 1:
+        raise MethodError(f"n4 = {n4}: expected at least 1 representation")
+    if block < 1 or block % 2 == 0:
+        raise MethodError(f"block = {block}: expected an odd block side >= 1")
+    r = block // 2
+    return [(dy, dx) for dy in range(-r, r + 1) for dx in range(-r, r + 1) if (dy, dx) != (0, 0)]
+
+
+def _default_lam(lam: float | None, k: int, m: int, n4: int) -> float:
+    """``lam``, or TRPCA's ``1 / sqrt(max(k, m) n4)`` for a (k, m, n4) tensor when it is None."""
+    return lam if lam is not None else 1.0 / np.sqrt(max(k, m) * n4)
 
 
 def gather(images: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -1140,7 +1151,7 @@ def _solve_tile(d0: np.ndarray, tw: np.ndarray | None, *, lam: float | None, gam
     """The tensor problem of one tile: its diffuse (representation 1, mean over angles)."""
     n4, _, n1, n2, _ = d0.shape
     k, m = 4 * n1, 3 * n2
-    lam_t = lam if lam is not None else 1.0 / np.sqrt(max(k, m) * n4)
+    lam_t = _default_lam(lam, k, m, n4)
     schedule = dict(rho=opt["rho"], mu0=opt["mu0"], mu_max=opt["mu_max"], tol=tol,
                     max_iter=opt["max_iter"])
     if opt["solver"] == "exact":
@@ -1253,7 +1264,7 @@ def _separate_device(stack: np.ndarray, *, opt: dict[str, Any], tile: tuple[int,
     ys, xs = tile_spans(h, tile[0], overlap), tile_spans(w, tile[1], overlap)
     n4 = d0.shape[0]
     n1, n2 = ys[0][1] - ys[0][0], xs[0][1] - xs[0][0]
-    lam_t = opt["lam"] if opt["lam"] is not None else 1.0 / np.sqrt(max(4 * n1, 3 * n2) * n4)
+    lam_t = _default_lam(opt["lam"], 4 * n1, 3 * n2, n4)
     rows_per = max(1, _device_batch(len(ys) * len(xs), n4 * 12 * n1 * n2 * d0.element_size(), dev) // len(xs))
     results, records = [], []
     for r0 in range(0, len(ys), rows_per):
