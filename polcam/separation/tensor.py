@@ -382,29 +382,21 @@ def initial_diffuse(reps: np.ndarray, *, init: str = "yang10", workers: int = 1,
     if spec.kind != "single":
         raise MethodError(f"init method {init!r} is not a single-image method")
     out = np.empty_like(reps)
-
-    def one(ia: tuple[int, int]) -> None:
-        i, a = ia
-        img = np.clip(reps[i, a], 0.0, 1.0)
-        res = spec.fn(img, **options)
-        d = res[0] if isinstance(res, tuple) else res
-        out[i, a] = np.clip(np.nan_to_num(np.asarray(d, dtype=np.float64)), 0.0, img)
-
     jobs = [(i, a) for i in range(reps.shape[0]) for a in range(reps.shape[1])]
+    args = ((init, reps[i, a], options) for i, a in jobs)
     if workers > 1 and len(jobs) > 1:
         # processes: the single-image methods are numpy/OpenCV code that holds the GIL
         # often enough that threads did not run faster than one
-        res = _map_processes(_init_job, ((init, reps[i, a], options) for i, a in jobs), workers)
-        for (i, a), d in zip(jobs, res):
-            out[i, a] = d
+        res = _map_processes(_init_job, args, workers)
     else:
-        for job in jobs:
-            one(job)
+        res = map(_init_job, args)
+    for (i, a), d in zip(jobs, res):
+        out[i, a] = d
     return out
 
 
 def _init_job(args: tuple[str, np.ndarray, dict[str, Any]]) -> np.ndarray:
-    """One single-image run of :func:`initial_diffuse` in a worker process."""
+    """One single-image run of :func:`initial_diffuse` (here or in a worker process)."""
     init, rep, options = args
     img = np.clip(rep, 0.0, 1.0)
     res = method_spec(init).fn(img, **options)
