@@ -165,7 +165,9 @@ def _prepare(job: FrameJob, opts: ProcessOptions) -> tuple[Any, str, dict[str, A
         raise LayoutError("no layout: the file has no sidecar saying it; give --layout "
                           "(imx250mzr, imx250myr, mono:A,B,C,D or color:A,B,C,D:BAYER)", path=job.input)
     calibration_hash = sha256_file(opts.calibration) if opts.calibration else None
-    method = opts.method or ("tensor" if frame.layout.is_color else "imin")
+    from polcam.separation import default_method
+
+    method = opts.method or default_method("stack" if frame.layout.is_color else "mono-stack")
     # without --method, the options are the colour default's (tensor): imin takes none
     method_options = dict(opts.method_options) if (opts.method or frame.layout.is_color) else {}
     parts = {

@@ -10,7 +10,15 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from polcam.separation._registry import Separation, method_spec, methods, register, separate
+from polcam.separation._registry import (
+    Separation,
+    default_method,
+    input_form,
+    method_spec,
+    methods,
+    register,
+    separate,
+)
 
 for _mod in pkgutil.iter_modules(__path__):
     if not _mod.name.startswith("_"):
@@ -19,4 +27,5 @@ for _mod in pkgutil.iter_modules(__path__):
 #: Registered separation method names.
 METHODS: tuple[str, ...] = methods()
 
-__all__ = ["METHODS", "Separation", "method_spec", "methods", "register", "separate"]
+__all__ = ["METHODS", "Separation", "default_method", "input_form", "method_spec", "methods", "register",
+           "separate"]

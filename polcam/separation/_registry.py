@@ -12,7 +12,8 @@ import numpy as np
 
 from polcam.errors import MethodError
 
-__all__ = ["Separation", "MethodSpec", "register", "separate", "methods", "method_spec"]
+__all__ = ["Separation", "MethodSpec", "register", "separate", "methods", "method_spec",
+           "default_method", "input_form"]
 
 
 @dataclass
@@ -92,6 +93,38 @@ def register(name: str, *, kind: str, mono: bool = False, reference: str = "",
     return deco
 
 
+#: The method ``separate`` runs when none is named, per input form (see :func:`input_form`):
+#: the best polcam has for that form (docs/benchmarks.md backs each choice).
+_DEFAULTS = {"stack": "tensor", "mono-stack": "imin", "image": "yang10"}
+
+
+def default_method(form: str) -> str:
+    """The method :func:`separate` uses without ``method=`` for an input of ``form``.
+
+    ``form``: ``"stack"`` ((4, H, W, 3) colour stack), ``"mono-stack"`` ((4, H, W))
+    or ``"image"`` ((H, W, 3) RGB image); process, capture and the demo use the same.
+    """
+    try:
+        return _DEFAULTS[form]
+    except KeyError:
+        raise MethodError(f"input form {form!r}: expected one of {', '.join(_DEFAULTS)}") from None
+
+
+def input_form(shape: Sequence[int]) -> str:
+    """``"stack"``, ``"mono-stack"`` or ``"image"`` for an input of ``shape``; MethodError otherwise."""
+    shape = tuple(shape)
+    if len(shape) == 4 and shape[0] == 4 and shape[-1] == 3:
+        return "stack"
+    if len(shape) == 3 and shape[0] == 4 and shape[-1] != 3:
+        return "mono-stack"
+    if len(shape) == 3 and shape[-1] == 3:
+        return "image"
+    raise MethodError(
+        f"input of shape {shape}: expected a (4, H, W, 3) colour polarization stack, "
+        "a (4, H, W) mono stack or an (H, W, 3) RGB image"
+    )
+
+
 def methods() -> tuple[str, ...]:
     """Registered method names, in polcam's canonical order."""
     known = [m for m in _ORDER if m in _METHODS]
@@ -117,17 +150,7 @@ def _as_input(images: Any) -> tuple[np.ndarray, str]:
             f"input of integer dtype {arr.dtype}: expected linear floats in [0, 1] "
             "(normalise raw counts by the white level first)"
         )
-    if arr.ndim == 4 and arr.shape[0] == 4 and arr.shape[-1] == 3:
-        form = "stack"
-    elif arr.ndim == 3 and arr.shape[0] == 4 and arr.shape[-1] != 3:
-        form = "mono-stack"
-    elif arr.ndim == 3 and arr.shape[-1] == 3:
-        form = "image"
-    else:
-        raise MethodError(
-            f"input of shape {arr.shape}: expected a (4, H, W, 3) colour polarization stack, "
-            "a (4, H, W) mono stack or an (H, W, 3) RGB image"
-        )
+    form = input_form(arr.shape)
     # one pass each: NaN propagates through min and max, and an infinity is the min or the max
     lo, hi = (float(arr.min()), float(arr.max())) if arr.size else (0.0, 0.0)
     if not (np.isfinite(lo) and np.isfinite(hi)):
@@ -163,7 +186,7 @@ def _check_options(spec: MethodSpec, options: dict[str, Any]) -> None:
         )
 
 
-def separate(images: Any, *, method: str = "tensor", **options: Any) -> Separation:
+def separate(images: Any, *, method: str | None = None, **options: Any) -> Separation:
     """Separate diffuse and specular reflection.
 
     Parameters
@@ -173,7 +196,8 @@ def separate(images: Any, *, method: str = "tensor", **options: Any) -> Separati
         float in [0, 1]); (4, H, W) mono stack (methods that accept mono);
         or (H, W, 3) RGB image (single-image methods only).
     method
-        A name from :data:`polcam.METHODS`.
+        A name from :data:`polcam.METHODS`; None (the default): the best method for
+        the input's form, :func:`default_method`.
     **options
         Keyword options of the method (see its module).
 
@@ -189,8 +213,11 @@ def separate(images: Any, *, method: str = "tensor", **options: Any) -> Separati
     MethodError
         Unknown method, or an input the method does not accept.
     """
-    spec = method_spec(method)
+    spec = None if method is None else method_spec(method)
     arr, form = _as_input(images)
+    if spec is None:
+        spec = method_spec(default_method(form))
+        method = spec.name
     if form == "mono-stack" and not spec.mono:
         raise MethodError(
             f"method {method!r} needs colour: got a mono stack of shape {arr.shape}; "
