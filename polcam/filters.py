@@ -41,22 +41,23 @@ from scipy import ndimage
 
 from polcam.errors import MethodError
 
-__all__ = ["MAX_AUTO_LEVELS", "JointBilateral", "joint_bilateral"]
+__all__ = ["MAX_AUTO_LEVELS", "MIN_GRID_SIGMA", "TRUNCATE", "JointBilateral", "auto_levels", "interp_weights",
+           "joint_bilateral"]
 
 #: Smallest spatial sigma, in grid cells, the coarse grid may leave.
-_MIN_GRID_SIGMA = 6.0
+MIN_GRID_SIGMA = 6.0
 #: Gaussian kernels are truncated at this many sigmas.
-_TRUNCATE = 4.0
+TRUNCATE = 4.0
 #: Most range levels chosen automatically (memory: levels x H x W doubles).
 MAX_AUTO_LEVELS = 64
 
 
-def _auto_levels(span: float, sigma_range: float) -> int:
+def auto_levels(span: float, sigma_range: float) -> int:
     """Levels spaced at most ``sigma_range`` apart over ``span`` (2 to MAX_AUTO_LEVELS)."""
     return min(MAX_AUTO_LEVELS, max(2, int(math.ceil(span / sigma_range - 1e-9)) + 1))
 
 
-def _interp_weights(n_full: int, n_grid: int, factor: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def interp_weights(n_full: int, n_grid: int, factor: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bilinear interpolation from cell centres of a coarse grid to pixels.
 
     Cell ``i`` covers pixels ``[i f, (i + 1) f)``; its centre is at
@@ -145,14 +146,14 @@ class JointBilateral:
         self.sigma_spatial = float(sigma_spatial)
         self.sigma_range = float(sigma_range)
         factor = int(downsample) if downsample is not None else max(
-            1, int(self.sigma_spatial // _MIN_GRID_SIGMA))
+            1, int(self.sigma_spatial // MIN_GRID_SIGMA))
         factor = min(factor, max(h, w))
         self.downsample = factor
         self.grid_shape = (-(-h // factor), -(-w // factor))
         self.grid_sigma = self.sigma_spatial / factor
 
         gmin, gmax = float(g.min()), float(g.max())
-        n_levels = int(levels) if levels is not None else _auto_levels(gmax - gmin, self.sigma_range)
+        n_levels = int(levels) if levels is not None else auto_levels(gmax - gmin, self.sigma_range)
         if gmax - gmin <= 0:
             n_levels = 1
         self.levels = np.linspace(gmin, gmax, n_levels) if n_levels > 1 else np.array([gmin])
@@ -190,8 +191,8 @@ class JointBilateral:
         else:
             k0 = np.zeros(g.shape, dtype=np.intp)
             a = np.zeros(g.shape)
-        y0, y1, ty = _interp_weights(h, gh, factor)
-        x0, x1, tx = _interp_weights(w, gw, factor)
+        y0, y1, ty = interp_weights(h, gh, factor)
+        x0, x1, tx = interp_weights(w, gw, factor)
         idx = np.empty((8, h, w), dtype=np.intp)
         wgt = np.empty((8, h, w))
         j = 0
@@ -236,7 +237,7 @@ class JointBilateral:
     def _blur(self, s: np.ndarray) -> np.ndarray:
         """Spatial Gaussian of each level (zero outside the image), in place."""
         for k in range(s.shape[0]):
-            s[k] = ndimage.gaussian_filter(s[k], self.grid_sigma, mode="constant", cval=0.0, truncate=_TRUNCATE)
+            s[k] = ndimage.gaussian_filter(s[k], self.grid_sigma, mode="constant", cval=0.0, truncate=TRUNCATE)
         return s
 
     def __call__(self, image: Any) -> np.ndarray:

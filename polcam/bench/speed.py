@@ -142,14 +142,14 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
 
     from polcam.bench.quality import psnr
     from polcam.separation import separate
-    from polcam.separation.tensor import start_workers
+    from polcam.parallel import start_workers
 
     opts = dict(case.get("options", {}))
     device_name, cuda = "", False
     if opts.get("device"):
         import torch
 
-        from polcam.separation._torch import warm_up
+        from polcam.separation.tensor import warm_up
 
         warm_up(opts["device"])        # the device's one-off start stays out of the figure
         dev = torch.device(opts["device"])

@@ -1,0 +1,315 @@
+"""The array namespaces the tensor method is written over: numpy and PyTorch.
+
+The operators (:mod:`.operators`), the tiling (:mod:`.tiling`) and the IALM
+loop (:mod:`.ialm`) are written once, against the small set of functions
+below; :func:`namespace` picks the set from the type of an array.  Only names
+whose spelling differs between numpy and PyTorch are here (``axis`` against
+``dim``, ``clip`` against ``clamp``, ``out=`` forms); operators both spell the
+same (``+``, ``*=``, slicing, ``reshape``, ``sum`` without an axis) are used
+directly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["NumpyXP", "TorchXP", "namespace"]
+
+
+class NumpyXP:
+    """The functions of :class:`TorchXP` for numpy arrays."""
+
+    name = "numpy"
+    float64 = np.float64
+
+    @staticmethod
+    def asarray(a: Any, like: Any = None, dtype: Any = None) -> np.ndarray:
+        return np.asarray(a, dtype=dtype)
+
+    @staticmethod
+    def to_numpy(a: Any) -> np.ndarray:
+        return np.asarray(a)
+
+    @staticmethod
+    def astype(a: np.ndarray, dtype: Any) -> np.ndarray:
+        return a.astype(dtype, copy=False)
+
+    @staticmethod
+    def copy(a: np.ndarray) -> np.ndarray:
+        return np.array(a, copy=True, order="C")
+
+    @staticmethod
+    def broadcast_to(a: np.ndarray, shape: Sequence[int]) -> np.ndarray:
+        return np.broadcast_to(a, tuple(shape))
+
+    @staticmethod
+    def dtype_of(name: str) -> Any:
+        return np.dtype(name)
+
+    @staticmethod
+    def zeros(shape: Sequence[int], like: np.ndarray, dtype: Any = None) -> np.ndarray:
+        return np.zeros(shape, dtype=like.dtype if dtype is None else dtype)
+
+    @staticmethod
+    def arange(n: int, like: np.ndarray) -> np.ndarray:
+        return np.arange(n, dtype=np.intp)
+
+    @staticmethod
+    def index_array(values: Any, like: np.ndarray) -> np.ndarray:
+        return np.asarray(values, dtype=np.intp)
+
+    @staticmethod
+    def stack(arrays: Sequence[np.ndarray], axis: int = 0) -> np.ndarray:
+        return np.stack(arrays, axis=axis)
+
+    @staticmethod
+    def permute(a: np.ndarray, axes: Sequence[int]) -> np.ndarray:
+        return a.transpose(axes)
+
+    @staticmethod
+    def sum(a: np.ndarray, axis: Any, keepdims: bool = False) -> np.ndarray:
+        return a.sum(axis=axis, keepdims=keepdims)
+
+    @staticmethod
+    def mean(a: np.ndarray, axis: Any = None) -> Any:
+        return a.mean(axis=axis)
+
+    @staticmethod
+    def amax(a: np.ndarray, axis: Any, keepdims: bool = False) -> np.ndarray:
+        return a.max(axis=axis, keepdims=keepdims)
+
+    @staticmethod
+    def amin(a: np.ndarray, axis: Any, keepdims: bool = False) -> np.ndarray:
+        return a.min(axis=axis, keepdims=keepdims)
+
+    where = staticmethod(np.where)
+
+    @staticmethod
+    def sqrt(a: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        return np.sqrt(a, out=out)
+
+    @staticmethod
+    def div(a: Any, b: Any, out: np.ndarray) -> np.ndarray:
+        return np.divide(a, b, out=out)
+    exp = staticmethod(np.exp)
+    hypot = staticmethod(np.hypot)
+    isfinite = staticmethod(np.isfinite)
+    einsum = staticmethod(np.einsum)
+    maximum = staticmethod(np.maximum)
+    minimum = staticmethod(np.minimum)
+
+    @staticmethod
+    def clamp_min(a: np.ndarray, lo: Any, out: np.ndarray | None = None) -> np.ndarray:
+        return np.maximum(a, lo, out=out)
+
+    @staticmethod
+    def clip(a: np.ndarray, lo: Any, hi: Any, out: np.ndarray | None = None) -> np.ndarray:
+        return np.clip(a, lo, hi, out=out)
+
+    @staticmethod
+    def pad_hw(a: np.ndarray, r: int, value: float) -> np.ndarray:
+        """Pad the first two axes of an (H, W, ...) array by ``r`` on each side with ``value``."""
+        widths = ((r, r), (r, r)) + ((0, 0),) * (a.ndim - 2)
+        return np.pad(a, widths, mode="constant", constant_values=value)
+
+    @staticmethod
+    def sort0(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sorted values and indices along axis 0."""
+        order = np.argsort(a, axis=0)
+        return np.take_along_axis(a, order, axis=0), order
+
+    @staticmethod
+    def take(a: np.ndarray, idx: np.ndarray, axis: int) -> np.ndarray:
+        return np.take(a, idx, axis=axis)
+
+    @staticmethod
+    def sub(a: Any, b: Any, out: np.ndarray) -> np.ndarray:
+        return np.subtract(a, b, out=out)
+
+    @staticmethod
+    def add(a: Any, b: Any, out: np.ndarray) -> np.ndarray:
+        return np.add(a, b, out=out)
+
+    @staticmethod
+    def mul(a: Any, b: Any, out: np.ndarray) -> np.ndarray:
+        return np.multiply(a, b, out=out)
+
+    @staticmethod
+    def tiny(a: np.ndarray) -> float:
+        return float(np.finfo(a.dtype).tiny)
+
+    @staticmethod
+    def sqnorms(a: np.ndarray) -> np.ndarray:
+        """Squared Frobenius norm of each a[b], float64 (B,)."""
+        flat = a.reshape(a.shape[0], -1)
+        return np.array([float(np.dot(row, row)) for row in flat])
+
+    @staticmethod
+    def column(values: np.ndarray, like: np.ndarray) -> np.ndarray:
+        """(B,) host values as a (B, 1, 1, 1) array of ``like``'s dtype."""
+        return np.asarray(values, dtype=like.dtype).reshape(-1, 1, 1, 1)
+
+
+class TorchXP:
+    """The functions of the namespace for ``torch.Tensor`` (on the tensor's device)."""
+
+    name = "torch"
+
+    def __init__(self) -> None:
+        import torch
+
+        self.torch = torch
+        self.float64 = torch.float64
+
+    def asarray(self, a: Any, like: Any = None, dtype: Any = None) -> Any:
+        t = self.torch.as_tensor(np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a,
+                                 device=None if like is None else like.device)
+        return t if dtype is None else t.to(dtype)
+
+    @staticmethod
+    def to_numpy(a: Any) -> np.ndarray:
+        return a.detach().cpu().numpy()
+
+    @staticmethod
+    def astype(a: Any, dtype: Any) -> Any:
+        return a.to(dtype)
+
+    @staticmethod
+    def copy(a: Any) -> Any:
+        return a.contiguous().clone()
+
+    @staticmethod
+    def broadcast_to(a: Any, shape: Sequence[int]) -> Any:
+        return a.expand(*shape)
+
+    def dtype_of(self, name: str) -> Any:
+        return {"float32": self.torch.float32, "float64": self.torch.float64}[name]
+
+    def zeros(self, shape: Sequence[int], like: Any, dtype: Any = None) -> Any:
+        return self.torch.zeros(tuple(shape), dtype=like.dtype if dtype is None else dtype, device=like.device)
+
+    def arange(self, n: int, like: Any) -> Any:
+        return self.torch.arange(n, device=like.device)
+
+    def index_array(self, values: Any, like: Any) -> Any:
+        return self.torch.as_tensor(np.asarray(values), dtype=self.torch.int64, device=like.device)
+
+    def stack(self, arrays: Sequence[Any], axis: int = 0) -> Any:
+        return self.torch.stack(list(arrays), dim=axis)
+
+    @staticmethod
+    def permute(a: Any, axes: Sequence[int]) -> Any:
+        return a.permute(*axes)
+
+    @staticmethod
+    def sum(a: Any, axis: Any, keepdims: bool = False) -> Any:
+        return a.sum(dim=axis, keepdim=keepdims)
+
+    @staticmethod
+    def mean(a: Any, axis: Any = None) -> Any:
+        return a.mean() if axis is None else a.mean(dim=axis)
+
+    @staticmethod
+    def amax(a: Any, axis: Any, keepdims: bool = False) -> Any:
+        return a.amax(dim=axis, keepdim=keepdims)
+
+    @staticmethod
+    def amin(a: Any, axis: Any, keepdims: bool = False) -> Any:
+        return a.amin(dim=axis, keepdim=keepdims)
+
+    def where(self, cond: Any, a: Any, b: Any) -> Any:
+        t = self.torch
+        ref = a if isinstance(a, t.Tensor) else b
+        if not isinstance(a, t.Tensor):
+            a = t.as_tensor(a, dtype=ref.dtype, device=ref.device)
+        if not isinstance(b, t.Tensor):
+            b = t.as_tensor(b, dtype=ref.dtype, device=ref.device)
+        return t.where(cond, a, b)
+
+    def sqrt(self, a: Any, out: Any = None) -> Any:
+        return self.torch.sqrt(a) if out is None else self.torch.sqrt(a, out=out)
+
+    def div(self, a: Any, b: Any, out: Any) -> Any:
+        if not isinstance(a, self.torch.Tensor):
+            return self.torch.mul(self.torch.reciprocal(b), a, out=out)
+        return self.torch.div(a, b, out=out)
+
+    def exp(self, a: Any) -> Any:
+        return self.torch.exp(a)
+
+    def hypot(self, a: Any, b: Any) -> Any:
+        return self.torch.hypot(a, b)
+
+    def isfinite(self, a: Any) -> Any:
+        return self.torch.isfinite(a)
+
+    def einsum(self, spec: str, *ops: Any) -> Any:
+        return self.torch.einsum(spec, *ops)
+
+    def maximum(self, a: Any, b: Any) -> Any:
+        return self.torch.maximum(a, b)
+
+    def minimum(self, a: Any, b: Any) -> Any:
+        return self.torch.minimum(a, b)
+
+    def clamp_min(self, a: Any, lo: Any, out: Any = None) -> Any:
+        return a.clamp_min(lo) if out is None else self.torch.clamp_min(a, lo, out=out)
+
+    def clip(self, a: Any, lo: Any, hi: Any, out: Any = None) -> Any:
+        if out is None:
+            return self.torch.clamp(a, lo, hi)
+        if out is not a:
+            out.copy_(a)
+        self.torch.maximum(out, lo, out=out)
+        self.torch.minimum(out, hi, out=out)
+        return out
+
+    def pad_hw(self, a: Any, r: int, value: float) -> Any:
+        # torch pads the last axes first: move H, W last, pad, move back
+        nd = a.ndim
+        moved = a.permute(*range(2, nd), 0, 1)
+        p = self.torch.nn.functional.pad(moved, (r, r, r, r), value=value)
+        return p.permute(nd - 2, nd - 1, *range(nd - 2))
+
+    def sort0(self, a: Any) -> tuple[Any, Any]:
+        return self.torch.sort(a, dim=0)
+
+    @staticmethod
+    def take(a: Any, idx: Any, axis: int) -> Any:
+        return a.index_select(axis % a.ndim, idx)
+
+    def sub(self, a: Any, b: Any, out: Any) -> Any:
+        return self.torch.sub(a, b, out=out)
+
+    def add(self, a: Any, b: Any, out: Any) -> Any:
+        return self.torch.add(a, b, out=out)
+
+    def mul(self, a: Any, b: Any, out: Any) -> Any:
+        return self.torch.mul(a, b, out=out)
+
+    def tiny(self, a: Any) -> float:
+        return float(self.torch.finfo(a.dtype).tiny)
+
+    def sqnorms(self, a: Any) -> np.ndarray:
+        n = self.torch.linalg.vector_norm(a.reshape(a.shape[0], -1), dim=1).to(self.torch.float64)
+        return (n * n).cpu().numpy()
+
+    def column(self, values: np.ndarray, like: Any) -> Any:
+        return self.torch.as_tensor(np.asarray(values, dtype=np.float64), device=like.device
+                                    ).to(like.dtype).reshape(-1, 1, 1, 1)
+
+
+_TORCH: TorchXP | None = None
+
+
+def namespace(a: Any) -> Any:
+    """:class:`NumpyXP` for a numpy array (or anything not a tensor), :class:`TorchXP` for a tensor."""
+    global _TORCH
+    if isinstance(a, np.ndarray) or type(a).__module__.split(".")[0] != "torch":
+        return NumpyXP
+    if _TORCH is None:
+        _TORCH = TorchXP()
+    return _TORCH
