@@ -9,7 +9,7 @@ from __future__ import annotations
 from importlib.metadata import PackageNotFoundError, version
 
 from polcam import stokes
-from polcam.demosaic import DEMOSAIC_METHODS, demosaic
+from polcam.demosaicing import DEMOSAIC_METHODS, demosaic
 from polcam.errors import PolcamError
 from polcam.frame import Frame
 from polcam.mosaic import Layout, parse_layout

@@ -572,7 +572,7 @@ class LiveProcessor:
         self.sink.log_stats(index, ts, fps=fps, dropped=dropped, incomplete=incomplete)
 
     def _run_separation(self) -> None:
-        from polcam.demosaic import demosaic
+        from polcam.demosaicing import demosaic
         from polcam.separation import separate
 
         while True:

@@ -61,7 +61,7 @@ def _dtype_for(name: str, fmt: str) -> str | None:
 
 def _run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, method: str,
                 resolution: str, fmt: str, quiet: bool = False) -> dict[str, Any]:
-    from polcam.demosaic import demosaic
+    from polcam.demosaicing import demosaic
     from polcam.io import read_frame, write_image
     from polcam.io.atomic import atomic_write
 
@@ -345,7 +345,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
-    from polcam.demosaic import DEMOSAIC_METHODS
+    from polcam.demosaicing import DEMOSAIC_METHODS
 
     p = argparse.ArgumentParser(
         prog="polcam",

@@ -233,7 +233,7 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
 def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, method_options: dict[str, Any],
              parts: dict[str, Any], fingerprint: str, t0: float) -> dict[str, Any]:
     from polcam import stokes as st
-    from polcam.demosaic import demosaic
+    from polcam.demosaicing import demosaic
     from polcam.errors import FrameWriteError
     from polcam.io import write_image
     from polcam.io.atomic import atomic_write

@@ -29,7 +29,7 @@ from polcam.capture import (
     main,
     run_capture,
 )
-from polcam.demosaic import demosaic, mosaic_stack
+from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import FrameWriteError, LayoutError, MethodError
 from polcam.frame import Frame
 from polcam.io import read_frame, read_sidecar, write_frame

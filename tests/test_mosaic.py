@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from polcam.demosaic import demosaic
+from polcam.demosaicing import demosaic
 from polcam.errors import LayoutError, PixelFormatError
 from polcam.mosaic import (
     ANGLES,

@@ -107,7 +107,7 @@ def _real(shared_data, name):
         pytest.skip(f"{path} not available")
     import cv2
 
-    from polcam.demosaic import demosaic
+    from polcam.demosaicing import demosaic
 
     raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     assert raw.shape == (2048, 2448)

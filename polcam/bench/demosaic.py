@@ -2,7 +2,7 @@
 
 Ground truth is a full-resolution polarization stack (every angle, and every
 colour for RGB, at every pixel).  Each stack is mosaicked in a sensor layout
-(:func:`polcam.demosaic.mosaic_stack`), quantised to 16 bits (the same uint16 raw
+(:func:`polcam.demosaicing.mosaic_stack`), quantised to 16 bits (the same uint16 raw
 goes to every method), demosaicked, and compared with the stack it came from.
 
 Scenes: the real colour stack of ``<data_dir>/real-color-stack`` (four 8-bit RGB
@@ -40,7 +40,6 @@ Run as ``python -m polcam.bench.demosaic --data-dir DIR``.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import statistics
 import sys
@@ -52,7 +51,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from polcam.demosaic import demosaic, mosaic_stack
+from polcam.demosaicing import demosaic, mosaic_stack
+from polcam.demosaicing import methods as demosaic_methods
 from polcam.errors import FrameReadError, MethodError
 from polcam.mosaic import parse_layout
 from polcam.stokes import aolp, dolp, stokes
@@ -223,7 +223,7 @@ def _method_fn(method: str, layout: str, pa: Any, order: dict[str, list[int]] | 
         if layout not in DEFAULT_LAYOUTS:
             raise MethodError(f"polanalyser only knows the IMX250 layouts, not {layout!r}")
         return _polanalyser_method(pa, order, parse_layout(layout).is_color)
-    known = importlib.import_module("polcam.demosaic").DEMOSAIC_METHODS
+    known = demosaic_methods()
     if method not in known:
         raise MethodError(
             f"benchmark method {method!r} is unknown; expected one of {', '.join((*known, 'polanalyser'))}"

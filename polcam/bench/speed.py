@@ -171,7 +171,7 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
             res = separate(stack, method="tensor", **opts)
             seconds = time.perf_counter() - t0
     else:
-        from polcam.demosaic import demosaic
+        from polcam.demosaicing import demosaic
 
         raw = _full_frame_raw(case["scene"], case.get("seed", 0))
         with _PeakMemory() as mem:

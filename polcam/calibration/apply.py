@@ -197,7 +197,7 @@ def apply_calibration(frame: Frame | np.ndarray, calibration: Calibration, *, po
         ``mosaic`` float32 (H, W): corrected counts above the dark (not
         clipped, so noise may dip below 0); ``black_level`` 0 and
         ``white_level`` the frame's ``white_level - black_level``, so
-        ``normalized()`` and :func:`polcam.demosaic.demosaic` give linear
+        ``normalized()`` and :func:`polcam.demosaicing.demosaic` give linear
         values on the same [0, 1] scale as the uncalibrated frame; the same
         layout, and ``metadata["calibration"]`` saying what was applied.
 
@@ -259,7 +259,7 @@ def _stack_model(calibration: Calibration, resolution: str) -> np.ndarray:
     cached = calibration._cache.get(key)
     if cached is not None:
         return cached
-    from polcam.demosaic import demosaic
+    from polcam.demosaicing import demosaic
 
     gain, dia, theta = effective_model(calibration)
     rows = measurement_rows(gain, dia, theta).astype(np.float32)    # (H, W, 3)
@@ -276,7 +276,7 @@ def correct_stack(stack: np.ndarray, calibration: Calibration, *, resolution: st
     """Polarimetric correction of a demosaiced stack, pixel by pixel.
 
     Use after ``apply_calibration(frame, cal, polarimetric="none")`` and
-    :func:`polcam.demosaic.demosaic`.  Each pixel's four angle values are
+    :func:`polcam.demosaicing.demosaic`.  Each pixel's four angle values are
     inverted through the 4x3 matrix of the coefficient maps demosaiced
     bilinearly at the same ``resolution`` (module docstring), and replaced by
     the ideal-polarizer values of the estimated Stokes vector plus the

@@ -54,7 +54,7 @@ from polcam.calibration.apply import apply_calibration, correct_stack
 from polcam.calibration.estimate import calibrate_dark, calibrate_flat, calibrate_polarizer, class_index
 from polcam.calibration.simulate import ImperfectSensor
 from polcam.calibration.store import Calibration
-from polcam.demosaic import demosaic
+from polcam.demosaicing import demosaic
 from polcam.frame import Frame
 from polcam.stokes import aolp, dolp, stokes
 

@@ -10,7 +10,7 @@ from polcam.calibration.bench import _scene, make_calibration, stokes_errors
 from polcam.calibration.model import nominal_orientation
 from polcam.calibration.simulate import ImperfectSensor
 from polcam.calibration.store import Calibration, CalibrationError
-from polcam.demosaic import demosaic
+from polcam.demosaicing import demosaic
 from polcam.frame import Frame
 from polcam.mosaic import parse_layout
 from polcam.stokes import stokes
