@@ -1,48 +1,65 @@
-"""The Rerun live view of a capture (rerun-sdk 0.41).
+"""The Rerun view of polcam's data (rerun-sdk 0.41): one sink for capture, process and view.
 
-Entity paths (DESIGN.md section 3):
+Every writer (``polcam capture --rerun``, ``polcam process --rerun``,
+``polcam view``) logs through :class:`RerunSink`, so each entity path has one
+meaning whoever wrote it:
 
 =============================== ==================================================
 ``/camera/raw``                 the raw mosaic, full resolution, 8-bit (its top 8
                                 significant bits); every ``raw_every``-th frame
-``/polarization/s0``            S0 / 2 (= Ic, the mean over the four angles), 8-bit
-                                grey (mono) or RGB (colour), linear, [0, 1] -> 0..255
+``/polarization/s0``            S0 = (I0 + I45 + I90 + I135) / 2 (the full S0, never
+                                S0 / 2) on a fixed 8-bit scale: value
+                                ``round(255 S0 / 2)``, so 255 is S0 = 2 (every
+                                polarizer image at white); grey (mono) or RGB
 ``/polarization/dolp``          DoLP in [0, 1] as a colour-mapped class image: class
-                                ``1 + round(254 DoLP)``, coloured by viridis
+                                ``1 + round(254 DoLP)``, coloured by viridis; colour:
+                                of the luminance-weighted Stokes vector (R + 2G + B) / 4
 ``/polarization/aolp``          AoLP as hue (HSV, full saturation and value) through a
                                 class image: class ``1 + round(AoLP in degrees) mod 180``,
-                                hue ``2 x`` AoLP, so 0 and 180 degrees meet
-``/layers/diffuse``             diffuse layer, 8-bit like S0 / 2
-``/layers/specular``            specular layer, 8-bit on the same scale
+                                hue ``2 x`` AoLP, so 0 and 180 degrees meet (cyclic)
+``/layers/diffuse``             diffuse layer, on the scale of one polarization image:
+                                value ``round(255 diffuse)``
+``/layers/specular``            specular layer, on the same scale
 ``/stats/fps``                  frames per second received from the camera
 ``/stats/dropped``              frames dropped so far (camera and queues)
 ``/stats/incomplete``           incomplete frames so far
 ``/stats/separation_seconds``   seconds the last separation took
 =============================== ==================================================
 
-Timelines: ``frame`` (a sequence: the capture's frame index) and ``device_time``
-(a duration: the camera's timestamp in ns; GigE Vision cameras count from
-power-up, so it is logged as a duration, not a date).
+Timelines: ``frame`` (a sequence: the capture's frame index, or the frame's
+position in a batch) and ``device_time`` (a duration: the camera's timestamp
+in ns; GigE Vision cameras count from power-up, so it is logged as a
+duration, not a date).
 
-Compact logging: every image goes out as 8-bit, one byte per value.  DoLP
-and AoLP are ``SegmentationImage`` class maps (one byte a pixel) whose colour
-maps are logged once as static ``AnnotationContext`` palettes (the viewer
-colours them; hovering shows the value as the class label).  Maps are
-downscaled by ``view_scale`` (default 0.5: 612 x 512 for the 1224 x 1024
-polarizer-cell maps of a 5 MP sensor, by pixel-area averaging; AoLP by
-nearest neighbour so orientations never average across the 0/180 wrap), and
-the full-resolution raw mosaic goes out every ``raw_every``-th frame only.
-A 5 MP mono frame costs about 2 MB of log data (colour about 3.5 MB) instead
-of the ~60 MB of its float32 maps.
+Why 8 bits: Rerun shows a float image on a range it guesses from the values
+(0..1 when they lie there, else 0..255), so S0 (up to 2) or AoLP in radians
+(up to pi) logged as floats come out black.  Fixed 8-bit codes show the same
+way in every viewer and cost one byte a value.  DoLP and AoLP are
+``SegmentationImage`` class maps whose colour maps are logged once as static
+``AnnotationContext`` palettes (hovering shows the value as the class label).
+Maps can be downscaled by ``view_scale`` (capture's default 0.5, by
+pixel-area averaging; AoLP by nearest neighbour so orientations never average
+across the 0/180 wrap).
 
-Targets: a ``.rrd`` file (written by Rerun's own thread), ``spawn`` (starts a
-viewer; needs a display) or ``serve`` (a gRPC server plus the web viewer on
-this machine, no display needed).
+Targets: a ``.rrd`` file, ``spawn`` (starts the native viewer; needs a
+display) or ``serve``: Rerun's web viewer and its data server (gRPC), run as
+a child process of the Rerun command-line tool bound to ``bind`` (127.0.0.1
+by default: Rerun's own default would be every interface), on ``port`` (the
+web page) and ``port + 1`` (the data).  The server keeps the most recent
+``memory_limit`` of data for viewers that connect later, and stops with the
+sink (and with this process, even when it is killed).
 """
 
 from __future__ import annotations
 
+import os
+import signal
+import socket
+import subprocess
+import sys
 import threading
+import time
+import urllib.parse
 from pathlib import Path
 from typing import Any
 
@@ -51,13 +68,19 @@ import numpy as np
 
 __all__ = [
     "AOLP_LEVELS",
+    "LOOPBACK",
+    "LUMA_WEIGHTS",
+    "WebServer",
     "DOLP_LEVELS",
     "ENTITIES",
     "RerunSink",
     "aolp_ids",
     "blueprint",
     "dolp_ids",
+    "is_loopback",
+    "luminance_orientation",
     "mosaic_u8",
+    "s0_u8",
     "palettes",
     "unit_u8",
 ]
@@ -160,33 +183,270 @@ def mosaic_u8(mosaic: np.ndarray, *, bit_depth: int) -> np.ndarray:
     return cv2.convertScaleAbs(np.ascontiguousarray(mosaic), alpha=1.0 / (1 << (int(bit_depth) - 8)))
 
 
+def s0_u8(s0: np.ndarray, *, scale: float = 1.0) -> np.ndarray:
+    """The 8-bit code of ``/polarization/s0``: ``round(255 * clip(S0 / 2, 0, 1))``, uint8.
+
+    Parameters
+    ----------
+    s0
+        (H, W) or (H, W, 3): ``s0 * scale`` is S0 = (I0 + I45 + I90 + I135) / 2
+        of intensities normalised to [0, 1], so S0 is in [0, 2].
+    scale
+        Factor from the stored values to S0 (e.g. ``2 / 255`` for 8-bit Ic values).
+    """
+    return unit_u8(s0, scale=0.5 * float(scale))
+
+
+#: Weights of the luminance-weighted Stokes vector of a colour stack, (R + 2 G + B) / 4.
+LUMA_WEIGHTS = (0.25, 0.5, 0.25)
+
+
+def luminance_orientation(s0: np.ndarray, dolp: np.ndarray, aolp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """DoLP and AoLP of the luminance-weighted Stokes vector of per-channel colour maps.
+
+    Parameters
+    ----------
+    s0, dolp, aolp
+        (h, w, 3) per-channel S0, DoLP in [0, 1] and AoLP in radians [0, pi).
+
+    Returns
+    -------
+    dolp, aolp : numpy.ndarray
+        (h, w) float32 of ``sum_c w_c (S0, S1, S2)_c`` with weights
+        :data:`LUMA_WEIGHTS` (the live colour view's definition), DoLP clipped
+        to [0, 1] (0 where S0 is 0), AoLP in [0, pi).
+    """
+    w = np.asarray(LUMA_WEIGHTS, dtype=np.float64)
+    s0 = np.asarray(s0, dtype=np.float64)
+    mag = s0 * np.asarray(dolp, dtype=np.float64)
+    two = 2.0 * np.asarray(aolp, dtype=np.float64)
+    l0 = s0 @ w
+    l1 = (mag * np.cos(two)) @ w
+    l2 = (mag * np.sin(two)) @ w
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(l0 > 0, np.hypot(l1, l2) / l0, 0.0)
+    a = np.mod(0.5 * np.arctan2(l2, l1), np.pi)
+    a = np.where(a >= np.pi, 0.0, a)
+    return np.clip(d, 0.0, 1.0).astype(np.float32), a.astype(np.float32)
+
+
 def blueprint() -> Any:
-    """The layout of the live view: images on two rows, the statistics plot beside the layers."""
+    """The one layout of capture, process and view.
+
+    Raw, S0 and DoLP on the first row, AoLP, diffuse and specular on the
+    second (all on the ``frame`` timeline), and below them the capture
+    statistics as time series: frame rate, dropped and incomplete frames,
+    separation time.
+    """
     import rerun.blueprint as rrb
 
     def view(role: str, name: str) -> Any:
         return rrb.Spatial2DView(origin=ENTITIES[role], name=name)
 
+    def plot(roles: tuple[str, ...], name: str) -> Any:
+        return rrb.TimeSeriesView(origin="/stats", contents=[ENTITIES[r] for r in roles], name=name)
+
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(view("raw", "raw"), view("s0", "S0"), view("dolp", "DoLP"), view("aolp", "AoLP")),
-            rrb.Horizontal(view("diffuse", "diffuse"), view("specular", "specular"),
-                           rrb.TimeSeriesView(origin="/stats", name="statistics")),
+            rrb.Horizontal(view("raw", "raw"), view("s0", "S0"), view("dolp", "DoLP (viridis, 0..1)")),
+            rrb.Horizontal(view("aolp", "AoLP (hue, 0..180 deg)"), view("diffuse", "diffuse"),
+                           view("specular", "specular")),
+            rrb.Horizontal(plot(("fps",), "frames per second"), plot(("dropped", "incomplete"), "dropped, incomplete"),
+                           plot(("separation_seconds",), "separation seconds")),
+            row_shares=[4, 4, 1.5],
         ),
+        rrb.TimePanel(timeline="frame", state="collapsed"),
         collapse_panels=True,
     )
 
 
+#: The default address of the web viewer: this machine only.
+LOOPBACK = "127.0.0.1"
+
+
+def is_loopback(address: str) -> bool:
+    """True for an address only this machine can reach (127.0.0.0/8, ::1, localhost)."""
+    import ipaddress
+
+    if address == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(address).is_loopback
+    except ValueError:
+        return False
+
+
+def _rerun_executable() -> str:
+    """The Rerun command-line tool shipped with rerun-sdk (its ``rerun_cli`` package)."""
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).parent / "rerun"
+        if exe.is_file():
+            return str(exe)
+    except ImportError:
+        pass
+    import shutil
+
+    found = shutil.which("rerun")
+    if found is None:
+        from polcam.errors import PolcamError
+
+        raise PolcamError("the Rerun command-line tool (rerun-sdk's rerun_cli) is not installed")
+    return found
+
+
+def _free_ports(n: int) -> list[int]:
+    socks = []
+    try:
+        for _ in range(n):
+            s = socket.socket()
+            s.bind((LOOPBACK, 0))
+            socks.append(s)
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    import ctypes
+
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+class WebServer:
+    """Rerun's web viewer and its data server, bound to one address, as a child process.
+
+    Parameters
+    ----------
+    bind
+        Address to listen on (default 127.0.0.1: this machine only; 0.0.0.0
+        opens it to every network this machine is on).
+    port
+        Port of the web page; the data (gRPC) port is ``port + 1``.  0 picks
+        two free ports.
+    recordings
+        ``.rrd`` files the server loads and serves.
+    memory_limit
+        Data kept for viewers that connect later (oldest dropped first), e.g.
+        ``"1GiB"`` or ``"25%"``.
+    start_timeout
+        Seconds to wait for both ports to accept connections.
+
+    Attributes
+    ----------
+    url
+        The page to open in a browser (it connects the viewer to the data).
+    grpc_url
+        Where an SDK streams data to (``rerun+http://.../proxy``).
+
+    Notes
+    -----
+    The child gets SIGTERM when the thread that started it ends (Linux
+    ``PR_SET_PDEATHSIG``), so no server outlives polcam even when it is killed.
+    """
+
+    def __init__(self, *, bind: str = LOOPBACK, port: int = 9090, recordings: tuple[str | Path, ...] = (),
+                 memory_limit: str = "1GiB", start_timeout: float = 30.0) -> None:
+        from polcam.errors import PolcamError
+
+        if not 0 <= int(port) <= 65534:
+            raise PolcamError(f"port {port!r}: expected 0 (any free port) or 1..65534 (the data use port + 1)")
+        web, grpc = _free_ports(2) if int(port) == 0 else (int(port), int(port) + 1)
+        self.bind = str(bind)
+        self.port, self.grpc_port = web, grpc
+        host = LOOPBACK if self.bind in ("0.0.0.0", "::", "127.0.0.1") else self.bind
+        self._probe = host if is_loopback(host) or self.bind not in ("0.0.0.0", "::") else LOOPBACK
+        public = host if self.bind not in ("0.0.0.0", "::") else socket.gethostname()
+        url_host = f"[{public}]" if ":" in public else public
+        self.grpc_url = f"rerun+http://{'[' + host + ']' if ':' in host else host}:{grpc}/proxy"
+        viewer_data = f"rerun+http://{url_host}:{grpc}/proxy"
+        self.url = f"http://{url_host}:{web}/?url={urllib.parse.quote(viewer_data, safe='')}"
+        cmd = [_rerun_executable(), "--serve-web", "--bind", self.bind, "--port", str(grpc),
+               "--web-viewer-port", str(web), "--server-memory-limit", str(memory_limit),
+               *[str(Path(r)) for r in recordings]]
+        env = {**os.environ, "RERUN_ANALYTICS": "false"}
+        self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+            cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
+            preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
+        try:
+            self._wait_ready(start_timeout)
+        except BaseException:
+            self.stop()
+            raise
+
+    @property
+    def pid(self) -> int | None:
+        """Process id of the server (None once stopped)."""
+        return None if self._proc is None else self._proc.pid
+
+    def _wait_ready(self, timeout: float) -> None:
+        from polcam.errors import PolcamError
+
+        end = time.monotonic() + timeout
+        pending = {self.port, self.grpc_port}
+        while pending:
+            assert self._proc is not None
+            if self._proc.poll() is not None:
+                err = (self._proc.stderr.read() if self._proc.stderr else b"").decode(errors="replace")
+                lines = [x for x in err.splitlines() if "ERROR" in x or "rror" in x] or err.splitlines()[-3:]
+                raise PolcamError(f"the Rerun web viewer on {self.bind}:{self.port}/{self.grpc_port} did not "
+                                  f"start (ports in use? try --port): {' '.join(lines)[-400:]}")
+            for p in list(pending):
+                try:
+                    socket.create_connection((self._probe, p), timeout=0.5).close()
+                    pending.discard(p)
+                except OSError:
+                    pass
+            if pending:
+                if time.monotonic() > end:
+                    raise PolcamError(f"the Rerun web viewer did not open ports {sorted(pending)} in {timeout:.0f} s")
+                time.sleep(0.1)
+        if self._proc is not None and self._proc.stderr is not None:
+            # keep draining its log so the child never blocks on a full pipe
+            threading.Thread(target=self._proc.stderr.read, daemon=True).start()
+
+    def message(self) -> str:
+        """What to tell the user: the URL to open, and who else can open it."""
+        text = f"Rerun web viewer: open {self.url}"
+        if not is_loopback(self.bind):
+            text += (f"\nwarning: listening on {self.bind} (ports {self.port} and {self.grpc_port}): anyone on "
+                     "the networks this machine is on can watch (use --bind 127.0.0.1 for this machine only)")
+        else:
+            text += " (this machine only; --bind ADDR to open it to a network)"
+        return text
+
+    def stop(self) -> None:
+        """Stop the server (SIGTERM, then SIGKILL after 5 s) and wait for it."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+    def __enter__(self) -> WebServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
 class RerunSink:
-    """Log a capture to Rerun.
+    """Log polcam's data to Rerun: the one writer of every entity path.
 
     Parameters
     ----------
     target
-        ``"spawn"`` (start a native viewer), ``"serve"`` (gRPC server + web
-        viewer), or a file path ending in ``.rrd``.
+        ``"spawn"`` (start a native viewer), ``"serve"`` (web viewer, see
+        :class:`WebServer`), or a file path ending in ``.rrd``.
     application_id
-        Rerun application id.
+        Rerun application id (``polcam``: the blueprint applies to it).
     recording_id
         Rerun recording id (default: a fresh one).
     raw_every
@@ -194,8 +454,8 @@ class RerunSink:
         calls (1: every time).
     view_scale
         Size factor of the logged maps (0 < view_scale <= 1).
-    open_browser
-        ``serve``: open a browser on the web viewer.
+    bind, port, memory_limit
+        ``serve``: see :class:`WebServer`.
 
     Notes
     -----
@@ -206,7 +466,7 @@ class RerunSink:
 
     def __init__(self, target: str | Path, *, application_id: str = "polcam",
                  recording_id: str | None = None, raw_every: int = 10, view_scale: float = 0.5,
-                 open_browser: bool = False) -> None:
+                 bind: str = LOOPBACK, port: int = 9090, memory_limit: str = "1GiB") -> None:
         import rerun as rr
 
         if int(raw_every) < 1:
@@ -220,13 +480,15 @@ class RerunSink:
         self._lock = threading.Lock()
         self.target = str(target)
         self.url: str | None = None
+        self.server: WebServer | None = None
         rec = rr.RecordingStream(application_id, recording_id=recording_id)
         bp = blueprint()
         if self.target == "spawn":
             rec.spawn(default_blueprint=bp)
         elif self.target == "serve":
-            self.url = rec.serve_grpc(default_blueprint=bp)
-            rr.serve_web_viewer(connect_to=self.url, open_browser=open_browser)
+            self.server = WebServer(bind=bind, port=port, memory_limit=memory_limit)
+            self.url = self.server.url
+            rec.connect_grpc(self.server.grpc_url, default_blueprint=bp)
         else:
             path = Path(self.target)
             if path.suffix.lower() != ".rrd":
@@ -262,16 +524,28 @@ class RerunSink:
             self._image("raw", img)
         return True
 
-    def log_polarization(self, index: int, timestamp_ns: int | None, *, ic: np.ndarray,
+    def log_polarization(self, index: int, timestamp_ns: int | None, *, s0: np.ndarray,
                          dolp: np.ndarray, aolp: np.ndarray, scale: float = 1.0) -> None:
-        """Log S0, DoLP and AoLP as 8-bit images.
+        """Log S0, DoLP and AoLP.
 
-        ``ic * scale`` is Ic = S0 / 2 normalised by the white level ([0, 1]),
-        logged at ``/polarization/s0``; ``dolp`` in [0, 1]; ``aolp`` in
-        radians, [0, pi).
+        Parameters
+        ----------
+        s0
+            (h, w) or (h, w, 3): ``s0 * scale`` is S0 = (I0 + I45 + I90 + I135) / 2
+            normalised by the white level ([0, 2]); logged as :func:`s0_u8`.
+        dolp
+            (h, w) DoLP in [0, 1]; or (h, w, 3) per colour channel, then the
+            DoLP and AoLP of the luminance-weighted Stokes vector are logged
+            (:func:`luminance_orientation`, what the live colour view shows).
+        aolp
+            (h, w) AoLP in radians, [0, pi); or (h, w, 3) with ``dolp``.
+        scale
+            Factor from ``s0``'s values to S0.
         """
+        if np.ndim(dolp) == 3:
+            dolp, aolp = luminance_orientation(np.asarray(s0, dtype=np.float32) * np.float32(scale), dolp, aolp)
         v = self.view_scale
-        s0_img = _resize(unit_u8(ic, scale=scale), v)
+        s0_img = _resize(s0_u8(s0, scale=scale), v)
         dolp_img = _resize(dolp_ids(dolp), v)
         aolp_img = _resize(aolp_ids(aolp), v, nearest=True)
         with self._lock:
@@ -305,9 +579,82 @@ class RerunSink:
                 self._rec.log(ENTITIES[name], self._rr.Scalars(float(value)))
                 self.logged[name] += 1
 
+    def log_products(self, index: int, products: dict[str, np.ndarray], *, timestamp_ns: int | None = None,
+                     frame: Any = None) -> None:
+        """Log one frame's products as process writes them (and view reads them back).
+
+        Parameters
+        ----------
+        index
+            The ``frame`` time.
+        products
+            ``s0`` (S0, [0, 2]), ``dolp``, ``aolp`` (radians), ``diffuse``,
+            ``specular`` (float arrays, (h, w) or (h, w, 3); a missing key is
+            not logged).
+        timestamp_ns
+            The device time, if known.
+        frame
+            The raw :class:`polcam.frame.Frame`, logged at ``/camera/raw``
+            (subject to ``raw_every``), or None.
+        """
+        if frame is not None:
+            self.log_raw(index, timestamp_ns, frame.mosaic, bit_depth=frame.bit_depth)
+        if all(k in products for k in ("s0", "dolp", "aolp")):
+            self.log_polarization(index, timestamp_ns, s0=products["s0"], dolp=products["dolp"],
+                                  aolp=products["aolp"])
+        if "diffuse" in products and "specular" in products:
+            self.log_layers(index, timestamp_ns, diffuse=products["diffuse"], specular=products["specular"])
+
+    def log_output(self, index: int, folder: str | Path) -> None:
+        """Log a frame folder written by ``polcam process`` (its files read back).
+
+        Reads ``s0``, ``dolp``, ``aolp``, ``diffuse``, ``specular`` (``.exr``
+        or ``.tif``) and ``meta.json``; the raw frame named there (``input``)
+        is logged too when it still exists, and its ``timestamp_ns`` as the
+        device time.
+
+        Raises
+        ------
+        FrameReadError
+            A product file that is missing or unreadable.
+        """
+        import json
+
+        from polcam.errors import FrameReadError
+        from polcam.io import read_frame, read_image
+
+        folder = Path(folder)
+        products: dict[str, np.ndarray] = {}
+        for name in ("s0", "dolp", "aolp", "diffuse", "specular"):
+            found = [folder / f"{name}{ext}" for ext in (".exr", ".tif", ".tiff") if (folder / f"{name}{ext}").is_file()]
+            if not found:
+                raise FrameReadError(f"no {name}.exr or {name}.tif: expected a polcam process frame folder", path=folder)
+            arr, _ = read_image(found[0])
+            if arr.ndim == 3 and arr.shape[2] == 1:
+                arr = arr[..., 0]
+            if arr.dtype == np.uint16:  # --format tiff16: [0, 1] scaled to 0..65535
+                arr = arr.astype(np.float32) / 65535.0
+            products[name] = np.ascontiguousarray(arr, dtype=np.float32)
+        meta: dict[str, Any] = {}
+        try:
+            meta = json.loads((folder / "meta.json").read_text())
+        except (OSError, ValueError):
+            pass
+        ts = (meta.get("frame") or {}).get("timestamp_ns")
+        frame = None
+        src = meta.get("input")
+        if src and Path(src).is_file():
+            try:
+                frame = read_frame(src, layout=meta.get("layout"))
+            except (ValueError, OSError):
+                frame = None  # the view goes on without the raw panel
+        self.log_products(index, products, timestamp_ns=None if ts is None else int(ts), frame=frame)
+
     def close(self) -> None:
-        """Flush everything to the target and disconnect."""
+        """Flush everything to the target; ``serve`` stops the web viewer."""
         with self._lock:
             self._rec.flush()
-            if self.target not in ("spawn", "serve"):
+            if self.target != "spawn":
                 self._rec.disconnect()
+            if self.server is not None:
+                self.server.stop()
