@@ -77,7 +77,8 @@ def _raw_files(root: Path) -> list[Path]:
                   if f.is_file() and f.suffix.lower() in RAW_EXTENSIONS and not f.name.startswith("."))
 
 
-def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | None = None) -> int:
+def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | None = None,
+             stop: Callable[[], bool] | None = None) -> int:
     """Log a process output folder or a raw folder to ``sink``; returns the frames logged.
 
     Parameters
@@ -88,6 +89,8 @@ def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | N
         A folder (:func:`kind_of` ``"processed"`` or ``"raw"``).
     on_frame
         Called with each frame's name once it is logged (progress).
+    stop
+        Polled before each frame; True ends the logging early.
 
     Raises
     ------
@@ -98,6 +101,8 @@ def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | N
     n = 0
     if kind == "processed":
         for i, folder in enumerate(frame_folders(path)):
+            if stop and stop():
+                break
             sink.log_output(i, folder)
             n += 1
             if on_frame:
@@ -113,6 +118,8 @@ def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | N
     from polcam.io import read_frame
 
     for i, f in enumerate(_raw_files(Path(path))):
+        if stop and stop():
+            break
         frame = read_frame(f)
         if frame.layout is None:
             raise LayoutError("no layout: the file has no sidecar saying it (write one, or view it through "
@@ -130,28 +137,32 @@ def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | N
     return n
 
 
-def _wait_for_signal() -> str:
-    """Block until SIGINT or SIGTERM; returns the signal's name."""
-    done = threading.Event()
-    got: list[str] = []
+class _SignalStop:
+    """While active, SIGINT and SIGTERM set :attr:`event` instead of ending the process."""
 
-    def handler(signum: int, _frame: Any) -> None:
-        got.append(signal.Signals(signum).name)
-        done.set()
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self._previous: dict[int, Any] = {}
 
-    previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        while not done.wait(0.5):
+    def __enter__(self) -> _SignalStop:
+        def handler(signum: int, _frame: Any) -> None:
+            self.event.set()
+
+        self._previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        return self
+
+    def wait(self) -> None:
+        while not self.event.wait(0.5):
             pass
-    finally:
-        for s, h in previous.items():
+
+    def __exit__(self, *exc: object) -> None:
+        for s, h in self._previous.items():
             signal.signal(s, h)
-    return got[0]
 
 
 def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "127.0.0.1",
          memory_limit: str = "1GiB", out: Callable[[str], None] = print,
-         wait: Callable[[], Any] = _wait_for_signal) -> int:
+         wait: Callable[[], Any] | None = None) -> int:
     """Show ``path`` in Rerun; the library form of ``polcam view``.
 
     Parameters
@@ -166,7 +177,9 @@ def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "
     out
         Where messages go (the URL to open, warnings).
     wait
-        ``web``: returns when the server should stop (default: at SIGINT or SIGTERM).
+        ``web``: returns when the server should stop (default: at SIGINT or
+        SIGTERM, which from the start of the call stop the logging and the
+        server cleanly).
 
     Returns
     -------
@@ -186,24 +199,26 @@ def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "
             sink.close()
         out(f"{n} frame(s) of {path} sent to the Rerun viewer")
         return 0
-    if kind == "rrd":
-        server = WebServer(bind=bind, port=port, recordings=(Path(path),), memory_limit=memory_limit)
+    with _SignalStop() as stop:
+        if kind == "rrd":
+            server = WebServer(bind=bind, port=port, recordings=(Path(path),), memory_limit=memory_limit)
+            try:
+                out(server.message())
+                out("Ctrl-C stops the server")
+                (wait or stop.wait)()
+            finally:
+                server.stop()
+            return 0
+        sink = RerunSink("serve", raw_every=1, view_scale=1.0, bind=bind, port=port, memory_limit=memory_limit)
         try:
-            out(server.message())
-            out("Ctrl-C stops the server")
-            wait()
+            assert sink.server is not None
+            out(sink.server.message())
+            n = log_path(sink, path, stop=stop.event.is_set)
+            if not stop.event.is_set():
+                out(f"{n} frame(s) of {path} logged; Ctrl-C stops the server")
+                (wait or stop.wait)()
         finally:
-            server.stop()
-        return 0
-    sink = RerunSink("serve", raw_every=1, view_scale=1.0, bind=bind, port=port, memory_limit=memory_limit)
-    try:
-        assert sink.server is not None
-        out(sink.server.message())
-        n = log_path(sink, path)
-        out(f"{n} frame(s) of {path} logged; Ctrl-C stops the server")
-        wait()
-    finally:
-        sink.close()
+            sink.close()
     return 0
 
 

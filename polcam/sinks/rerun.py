@@ -70,6 +70,7 @@ __all__ = [
     "AOLP_LEVELS",
     "LOOPBACK",
     "LUMA_WEIGHTS",
+    "TIE_BREAK",
     "WebServer",
     "DOLP_LEVELS",
     "ENTITIES",
@@ -114,8 +115,15 @@ def _hue_rgb(n: int) -> np.ndarray:
     return cv2.cvtColor(cv2.merge([hue, full, full]), cv2.COLOR_HSV2RGB)[:, 0, :].copy()
 
 
+#: Added before rounding to a code: exact halves (frequent with 8-bit sensors, whose sums of
+#: four angles are whole numbers) round up whichever float32 rounding error came before, so
+#: two computations of the same value give the same code.  Far below a code, far above
+#: float32 noise (~2e-5 of a code at 255).
+TIE_BREAK = 1.0 / 512.0
+
+
 def unit_u8(img: np.ndarray, *, scale: float = 1.0) -> np.ndarray:
-    """``round(clip(img * scale, 0, 1) * 255)`` as uint8.
+    """``round(clip(img * scale, 0, 1) * 255)`` as uint8 (halves round up, :data:`TIE_BREAK`).
 
     Parameters
     ----------
@@ -135,7 +143,7 @@ def unit_u8(img: np.ndarray, *, scale: float = 1.0) -> np.ndarray:
         return a  # already 8-bit display values
     if a.dtype not in (np.uint8, np.uint16, np.float32):
         a = a.astype(np.float32)
-    return cv2.addWeighted(a, 255.0 * float(scale), a, 0.0, 0.0, dtype=cv2.CV_8U)
+    return cv2.addWeighted(a, 255.0 * float(scale), a, 0.0, TIE_BREAK, dtype=cv2.CV_8U)
 
 
 #: DoLP classes: DoLP d is class 1 + round(254 d); class 0 is not used.
@@ -147,13 +155,13 @@ AOLP_LEVELS = 180
 def dolp_ids(dolp: np.ndarray) -> np.ndarray:
     """DoLP (H, W) in [0, 1] as class ids ``1 + round(254 DoLP)`` (uint8, 1..255)."""
     a = np.ascontiguousarray(dolp, dtype=np.float32)
-    return cv2.addWeighted(a, DOLP_LEVELS - 1.0, a, 0.0, 1.0, dtype=cv2.CV_8U)
+    return cv2.addWeighted(a, DOLP_LEVELS - 1.0, a, 0.0, 1.0 + TIE_BREAK, dtype=cv2.CV_8U)
 
 
 def aolp_ids(aolp: np.ndarray) -> np.ndarray:
     """AoLP (H, W) in radians, [0, pi), as class ids ``1 + round(degrees) mod 180`` (uint8, 1..180)."""
     a = np.ascontiguousarray(aolp, dtype=np.float32)
-    deg = cv2.addWeighted(a, 180.0 / np.pi, a, 0.0, 0.0, dtype=cv2.CV_8U)  # 0..180
+    deg = cv2.addWeighted(a, 180.0 / np.pi, a, 0.0, TIE_BREAK, dtype=cv2.CV_8U)  # 0..180
     deg = cv2.threshold(deg, AOLP_LEVELS - 1, 0, cv2.THRESH_TOZERO_INV)[1]  # 180 is 0
     return cv2.add(deg, 1)
 
@@ -367,6 +375,7 @@ class WebServer:
                "--web-viewer-port", str(web), "--server-memory-limit", str(memory_limit),
                *[str(Path(r)) for r in recordings]]
         env = {**os.environ, "RERUN_ANALYTICS": "false"}
+        self._drain: threading.Thread | None = None
         self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
             cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
             preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
@@ -405,7 +414,8 @@ class WebServer:
                 time.sleep(0.1)
         if self._proc is not None and self._proc.stderr is not None:
             # keep draining its log so the child never blocks on a full pipe
-            threading.Thread(target=self._proc.stderr.read, daemon=True).start()
+            self._drain = threading.Thread(target=self._proc.stderr.read, daemon=True)
+            self._drain.start()
 
     def message(self) -> str:
         """What to tell the user: the URL to open, and who else can open it."""
@@ -429,6 +439,11 @@ class WebServer:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
+        if self._drain is not None:
+            self._drain.join(5)
+            self._drain = None
+        if proc.stderr is not None:
+            proc.stderr.close()
 
     def __enter__(self) -> WebServer:
         return self
