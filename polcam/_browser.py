@@ -15,9 +15,11 @@ from __future__ import annotations
 import base64
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 import urllib.request
@@ -27,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PLANTED", "BrowserUnavailable", "Page", "colour_fraction", "find_chromium", "open_page",
-           "planted_scene", "shows_planted", "viewer_screenshot"]
+__all__ = ["PLANTED", "BrowserUnavailable", "Page", "Served", "colour_fraction", "doc_screenshots",
+           "find_chromium", "open_page", "planted_scene", "serve", "shows_planted", "viewer_screenshot"]
 
 _NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
@@ -271,3 +273,133 @@ def viewer_screenshot(url: str, *, accept: Callable[[np.ndarray], bool], timeout
             time.sleep(settle)
             shot = page.screenshot()
         return shot, ok
+
+
+class Served:
+    """A polcam command that serves the web viewer (``polcam view --web``, ``capture --rerun serve``).
+
+    Started by :func:`serve`; ``url`` is the page it printed, ``server_pids``
+    its child processes at that moment (the Rerun server).  Leaving the
+    ``with`` block sends SIGINT (Ctrl-C) and waits for the command.
+    """
+
+    def __init__(self, args: list[str], *, stream: str = "stdout", timeout: float = 60.0,
+                 env: dict[str, str] | None = None) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-m", "polcam.cli", *args], stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True, env=env)
+        self.returncode: int | None = None
+        source = self.proc.stdout if stream == "stdout" else self.proc.stderr
+        assert source is not None
+        end = time.monotonic() + timeout
+        seen: list[str] = []
+        url = None
+        while url is None and time.monotonic() < end:
+            line = source.readline()
+            if not line:
+                break
+            seen.append(line)
+            m = re.search(r"Rerun web viewer: open (http://\S+)", line)
+            url = m.group(1) if m else None
+        if url is None:
+            self.stop()
+            raise RuntimeError(f"polcam {' '.join(args)} printed no URL: {''.join(seen)[-2000:]}")
+        self.url: str = url
+        self.server_pids = _children(self.proc.pid)
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 30.0) -> int:
+        """Send ``sig``, wait for the command, close its pipes; returns its exit status."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        for f in (self.proc.stdout, self.proc.stderr):
+            if f is not None:
+                f.close()
+        self.returncode = self.proc.returncode
+        return self.returncode
+
+    def __enter__(self) -> Served:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def serve(args: list[str], *, stream: str = "stdout", timeout: float = 60.0,
+          env: dict[str, str] | None = None) -> Served:
+    """Start ``polcam ARGS`` (a command that serves the web viewer) and wait for its URL.
+
+    ``stream``: where it prints the URL (``view``: stdout; ``capture``: stderr).
+    """
+    return Served(args, stream=stream, timeout=timeout, env=env)
+
+
+def _children(pid: int) -> list[int]:
+    kids = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                if int(Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    kids.append(int(d))
+            except (OSError, IndexError, ValueError):
+                pass
+    return kids
+
+
+def _drawn(shot: np.ndarray) -> bool:
+    """The viewer has drawn images: many distinct colours, not a blank or loading page."""
+    return shot.std() > 30 and len(np.unique(shot[::4, ::4].reshape(-1, 3), axis=0)) > 500
+
+
+def doc_screenshots(out_dir: str | Path, *, work: str | Path | None = None) -> list[Path]:
+    """The screenshots of docs/viewer.md: a processed batch and a live capture, in ``out_dir``.
+
+    Made the way the browser tests look at the viewer (:func:`serve`,
+    :func:`viewer_screenshot`) on the fixtures: ``polcam process`` of
+    fixtures/raw shown by ``polcam view --web``, and ``polcam capture --rerun
+    serve`` replaying the colour fixture.  ``python -m polcam._browser docs/img``.
+    """
+    import cv2
+
+    root = Path(__file__).resolve().parents[1]
+    fixtures = root / "fixtures" / "raw"
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(work) if work is not None else Path(tempfile.mkdtemp(prefix="polcam-shots-"))
+    env = {**os.environ, "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    made = []
+    try:
+        batch = tmp / "batch"
+        subprocess.run([sys.executable, "-m", "polcam.cli", "process", str(fixtures), "-o", str(batch),
+                        "--quiet", "--workers", "1"], check=True, env=env)
+        with serve(["view", str(batch), "--web", "--port", "0"], env=env) as served:
+            shot, ok = viewer_screenshot(served.url, accept=_drawn, timeout=90, settle=3)
+        if not ok:
+            raise RuntimeError("the batch view did not draw")
+        cv2.imwrite(str(out_dir / "viewer-batch.png"), shot[:, :, ::-1])
+        made.append(out_dir / "viewer-batch.png")
+        replay = tmp / "replay"
+        replay.mkdir(exist_ok=True)
+        for ext in (".png", ".json"):
+            shutil.copy(fixtures / f"synthetic_bunny5{ext}", replay / f"synthetic_bunny5{ext}")
+        with serve(["capture", "--device", f"replay:{replay}", "--loop", "--frame-rate", "10", "--duration", "120",
+                    "--no-save", "--view-scale", "1", "--raw-every", "1", "--rerun", "serve", "--port", "0"],
+                   stream="stderr", env=env) as served:
+            time.sleep(3)
+            shot, ok = viewer_screenshot(served.url, accept=_drawn, timeout=90, settle=5)
+        if not ok:
+            raise RuntimeError("the live view did not draw")
+        cv2.imwrite(str(out_dir / "viewer-capture.png"), shot[:, :, ::-1])
+        made.append(out_dir / "viewer-capture.png")
+    finally:
+        if work is None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return made
+
+
+if __name__ == "__main__":  # pragma: no cover
+    for made in doc_screenshots(sys.argv[1] if len(sys.argv) > 1 else "docs/img"):
+        print(made)

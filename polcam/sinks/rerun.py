@@ -13,10 +13,13 @@ meaning whoever wrote it:
                                 polarizer image at white); grey (mono) or RGB
 ``/polarization/dolp``          DoLP in [0, 1] as a colour-mapped class image: class
                                 ``1 + round(254 DoLP)``, coloured by viridis; colour:
-                                of the luminance-weighted Stokes vector (R + 2G + B) / 4
+                                of the luminance-weighted Stokes vector (R + 2G + B) / 4;
+                                class 0 (black) where S0 is too dark to have one
+                                (its code below ``DARK_CODE``, S0 < ~0.02)
 ``/polarization/aolp``          AoLP as hue (HSV, full saturation and value) through a
                                 class image: class ``1 + round(AoLP in degrees) mod 180``,
-                                hue ``2 x`` AoLP, so 0 and 180 degrees meet (cyclic)
+                                hue ``2 x`` AoLP, so 0 and 180 degrees meet (cyclic);
+                                class 0 where dark, as DoLP
 ``/layers/diffuse``             diffuse layer, on the scale of one polarization image:
                                 value ``round(255 diffuse)``
 ``/layers/specular``            specular layer, on the same scale
@@ -68,6 +71,7 @@ import numpy as np
 
 __all__ = [
     "AOLP_LEVELS",
+    "DARK_CODE",
     "LOOPBACK",
     "LUMA_WEIGHTS",
     "TIE_BREAK",
@@ -173,7 +177,21 @@ def palettes() -> dict[str, list[tuple[int, str, tuple[int, int, int]]]]:
     dolp = [(i + 1, f"DoLP {i / (DOLP_LEVELS - 1):.3f}",
              tuple(int(c) for c in vir[round(i * 255 / (DOLP_LEVELS - 1))])) for i in range(DOLP_LEVELS)]
     aolp = [(i + 1, f"AoLP {i} deg", tuple(int(c) for c in hues[i])) for i in range(AOLP_LEVELS)]
-    return {"dolp": dolp, "aolp": aolp}  # type: ignore[dict-item]
+    dark = (0, f"too dark (S0 code < {DARK_CODE})", (0, 0, 0))
+    return {"dolp": [dark, *dolp], "aolp": [dark, *aolp]}  # type: ignore[dict-item]
+
+
+#: DoLP and AoLP are not shown (class 0, black) where the S0 code is below this, i.e. S0 < 2.5 / 127.5
+#: (about 1 % of white): there they are the orientation of noise, a speckle that hides the scene.
+DARK_CODE = 3
+
+
+def _mask_dark(ids: np.ndarray, s0_code: np.ndarray) -> np.ndarray:
+    """``ids`` with class 0 where the S0 code (brightest channel) is below :data:`DARK_CODE`."""
+    level = s0_code.max(axis=-1) if s0_code.ndim == 3 else s0_code
+    out = ids.copy()
+    out[level < DARK_CODE] = 0
+    return out
 
 
 def _resize(img: np.ndarray, scale: float, *, nearest: bool = False) -> np.ndarray:
@@ -561,8 +579,8 @@ class RerunSink:
             dolp, aolp = luminance_orientation(np.asarray(s0, dtype=np.float32) * np.float32(scale), dolp, aolp)
         v = self.view_scale
         s0_img = _resize(s0_u8(s0, scale=scale), v)
-        dolp_img = _resize(dolp_ids(dolp), v)
-        aolp_img = _resize(aolp_ids(aolp), v, nearest=True)
+        dolp_img = _mask_dark(_resize(dolp_ids(dolp), v), s0_img)
+        aolp_img = _mask_dark(_resize(aolp_ids(aolp), v, nearest=True), s0_img)
         with self._lock:
             self._time(index, timestamp_ns)
             self._image("s0", s0_img)

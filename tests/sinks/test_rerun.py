@@ -78,13 +78,13 @@ def test_palettes_match_the_colour_maps():
 
     pal = palettes()
     dolp = {i: c for i, _, c in pal["dolp"]}
-    assert sorted(dolp) == list(range(1, 256))
+    assert sorted(dolp) == list(range(0, 256)) and dolp[0] == (0, 0, 0)  # 0: too dark to say
     vir = matplotlib.colormaps["viridis"]
     for i in (1, 64, 128, 200, 255):
         ref = np.array(vir((i - 1) / 254)[:3]) * 255
         assert np.abs(np.array(dolp[i]) - ref).max() <= 3, (i, dolp[i], ref)
     aolp = {i: (label, c) for i, label, c in pal["aolp"]}
-    assert sorted(aolp) == list(range(1, 181))
+    assert sorted(aolp) == list(range(0, 181)) and aolp[0][1] == (0, 0, 0)
     # AoLP a degrees is hue 2a: 0 red, 60 (hue 120) green, 120 (hue 240) blue
     assert aolp[1] == ("AoLP 0 deg", (255, 0, 0))
     assert aolp[61][1] == (0, 255, 0) and aolp[121][1] == (0, 0, 255)
@@ -333,3 +333,26 @@ def test_a_port_in_use_is_a_clear_error():
             WebServer(port=port, start_timeout=10)
     finally:
         s.close()
+
+
+def test_dolp_and_aolp_are_not_shown_where_s0_is_too_dark(tmp_path):
+    from polcam.sinks.rerun import DARK_CODE
+
+    path = tmp_path / "dark.rrd"
+    sink = RerunSink(path, view_scale=1.0)
+    s0 = np.array([[0.0, 2.4 / 127.5, 2.6 / 127.5, 1.0]], dtype=np.float32)  # codes 0, 2, 3, 128
+    dolp = np.full((1, 4), 0.5, np.float32)
+    aolp = np.full((1, 4), np.deg2rad(30.0), np.float32)
+    sink.log_polarization(0, None, s0=s0, dolp=dolp, aolp=aolp)
+    # colour: the brightest channel decides
+    rgb = np.stack([s0, np.zeros_like(s0), np.zeros_like(s0)], axis=-1)
+    sink.log_polarization(1, None, s0=rgb, dolp=np.repeat(dolp[..., None], 3, -1),
+                          aolp=np.repeat(aolp[..., None], 3, -1))
+    sink.close()
+    data = _read(path)
+    assert DARK_CODE == 3
+    for frame in (0, 1):
+        _, d = _image(data[ENTITIES["dolp"]]["batches"], "SegmentationImage", frame)
+        _, a = _image(data[ENTITIES["aolp"]]["batches"], "SegmentationImage", frame)
+        np.testing.assert_array_equal(d, [0, 0, 128, 128])
+        np.testing.assert_array_equal(a, [0, 0, 31, 31])
