@@ -4,10 +4,6 @@
 from __future__ import annotations
 
 import os
-import re
-import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -19,12 +15,12 @@ from polcam._browser import (
     colour_fraction,
     open_page,
     planted_scene,
+    serve,
     shows_planted,
     viewer_screenshot,
 )
 from polcam.cli import main
 
-pytestmark = pytest.mark.browser
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -42,30 +38,41 @@ def _env() -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
 
 
-def _url(stream, proc: subprocess.Popen[str], timeout: float = 60.0) -> str:
-    end = time.monotonic() + timeout
-    seen = []
-    while time.monotonic() < end:
-        line = stream.readline()
-        if not line:
-            break
-        seen.append(line)
-        m = re.search(r"Rerun web viewer: open (http://\S+)", line)
-        if m:
-            return m.group(1)
-    raise AssertionError(f"no URL printed (exit {proc.poll()}): {''.join(seen)[-2000:]}")
+def _gone(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
 
 
-def _children(pid: int) -> list[int]:
-    kids = []
-    for d in os.listdir("/proc"):
-        if d.isdigit():
-            try:
-                if int(Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
-                    kids.append(int(d))
-            except OSError:
-                pass
-    return kids
+def test_colour_fraction_and_planted_colours():
+    shot = np.zeros((10, 10, 3), np.uint8)
+    shot[:2] = (230, 13, 230)
+    shot[2:3] = (235, 20, 225)   # within 10 of it
+    shot[3:4] = (200, 13, 230)   # not
+    assert colour_fraction(shot, (230, 13, 230)) == pytest.approx(0.3)
+    assert shows_planted(shot, {"a": (230, 13, 230)}, least=0.3)
+    assert not shows_planted(shot, {"a": (230, 13, 230), "b": (0, 255, 0)})
+
+
+def test_the_planted_frame_holds_what_it_says(tmp_path):
+    from polcam.io import read_frame
+    from polcam.sinks.rerun import palettes
+
+    colours = planted_scene(tmp_path, count=2)
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["planted_00.png", "planted_01.png"]
+    frame = read_frame(tmp_path / "planted_00.png")
+    assert str(frame.layout) == "imx250myr" and frame.bit_depth == 12
+    import polcam
+    from polcam import stokes as st
+
+    s = st.stokes(polcam.demosaic(frame, resolution="cell"))
+    top, bottom = (slice(4, 28), slice(4, -4)), (slice(36, 60), slice(4, -4))
+    np.testing.assert_allclose(s.s0[top].mean(axis=(0, 1)) / 2, (0.9, 0.05, 0.9), atol=2e-3)
+    assert abs(st.dolp(s)[bottom].mean() - 0.5) < 2e-3 and st.dolp(s)[top].max() < 2e-3
+    assert abs(np.rad2deg(st.aolp(s)[bottom]).mean() - 60.0) < 0.1
+    assert colours["s0"] == (230, 13, 230) and colours["aolp"] == (0, 255, 0)
+    assert colours["dolp"] == dict((c, rgb) for c, _, rgb in palettes()["dolp"])[128]
 
 
 def _check(shot: np.ndarray, ok: bool, colours: dict[str, tuple[int, int, int]], out: Path) -> None:
@@ -79,47 +86,27 @@ def _check(shot: np.ndarray, ok: bool, colours: dict[str, tuple[int, int, int]],
     assert all(f >= 0.01 for f in fractions.values()), fractions
 
 
+@pytest.mark.browser
 def test_view_web_shows_a_processed_folder(browser, tmp_path):
     colours = planted_scene(tmp_path / "raw")
     assert main(["process", str(tmp_path / "raw"), "-o", str(tmp_path / "out"), "--method", "imin",
                  "--workers", "1", "--quiet"]) == 0
-    proc = subprocess.Popen([sys.executable, "-m", "polcam.cli", "view", str(tmp_path / "out"), "--web",
-                             "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
-    try:
-        url = _url(proc.stdout, proc)
-        assert url.startswith("http://127.0.0.1:")
-        shot, ok = viewer_screenshot(url, accept=lambda s: shows_planted(s, colours), timeout=60)
+    with serve(["view", str(tmp_path / "out"), "--web", "--port", "0"], env=_env()) as served:
+        assert served.url.startswith("http://127.0.0.1:") and served.server_pids
+        shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60)
         _check(shot, ok, colours, tmp_path / "view.png")
-    finally:
-        proc.send_signal(signal.SIGINT)
-        proc.wait(30)
-        proc.stdout.close()
-        proc.stderr.close()
-    assert proc.returncode == 0
+    assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
 
 
+@pytest.mark.browser
 def test_capture_serve_shows_the_live_frames_to_a_late_viewer(browser, tmp_path):
     colours = planted_scene(tmp_path / "replay", count=3)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "polcam.cli", "capture", "--device", f"replay:{tmp_path / 'replay'}", "--loop",
-         "--frame-rate", "5", "--duration", "120", "--no-save", "--separate", "imin", "--view-scale", "1",
-         "--rerun", "serve", "--port", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
-    try:
-        url = _url(proc.stderr, proc)
-        kids = _children(proc.pid)
-        assert url.startswith("http://127.0.0.1:") and kids
+    with serve(["capture", "--device", f"replay:{tmp_path / 'replay'}", "--loop", "--frame-rate", "5",
+                "--duration", "120", "--no-save", "--separate", "imin", "--view-scale", "1", "--rerun", "serve",
+                "--port", "0"], stream="stderr", env=_env()) as served:
+        assert served.url.startswith("http://127.0.0.1:") and served.server_pids
         time.sleep(3)  # the viewer opens after the capture started: the server kept the recent frames
-        shot, ok = viewer_screenshot(url, accept=lambda s: shows_planted(s, colours), timeout=60)
+        shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60)
         _check(shot, ok, colours, tmp_path / "capture.png")
-        assert proc.poll() is None  # still capturing: this was the live view
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(30)
-        finally:
-            proc.stdout.close()
-            proc.stderr.close()
-    assert proc.returncode == 0
-    for k in kids:
-        assert not Path(f"/proc/{k}").exists() or "Z" in Path(f"/proc/{k}/stat").read_text().rsplit(")", 1)[1][:3]
+        assert served.proc.poll() is None  # still capturing: this was the live view
+    assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)

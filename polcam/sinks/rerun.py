@@ -71,6 +71,7 @@ import numpy as np
 
 __all__ = [
     "AOLP_LEVELS",
+    "AOLP_TIE_BREAK",
     "DARK_CODE",
     "LOOPBACK",
     "LUMA_WEIGHTS",
@@ -124,6 +125,9 @@ def _hue_rgb(n: int) -> np.ndarray:
 #: two computations of the same value give the same code.  Far below a code, far above
 #: float32 noise (~2e-5 of a code at 255).
 TIE_BREAK = 1.0 / 512.0
+#: The same for AoLP in degrees, wider: the live path's OpenCV ``cartToPolar`` differs from
+#: ``arctan2`` by up to ~0.005 degrees, and exact halves (22.5, 67.5, ...: S1 = +-S2) are frequent.
+AOLP_TIE_BREAK = 1.0 / 64.0
 
 
 def unit_u8(img: np.ndarray, *, scale: float = 1.0) -> np.ndarray:
@@ -165,7 +169,7 @@ def dolp_ids(dolp: np.ndarray) -> np.ndarray:
 def aolp_ids(aolp: np.ndarray) -> np.ndarray:
     """AoLP (H, W) in radians, [0, pi), as class ids ``1 + round(degrees) mod 180`` (uint8, 1..180)."""
     a = np.ascontiguousarray(aolp, dtype=np.float32)
-    deg = cv2.addWeighted(a, 180.0 / np.pi, a, 0.0, TIE_BREAK, dtype=cv2.CV_8U)  # 0..180
+    deg = cv2.addWeighted(a, 180.0 / np.pi, a, 0.0, AOLP_TIE_BREAK, dtype=cv2.CV_8U)  # 0..180
     deg = cv2.threshold(deg, AOLP_LEVELS - 1, 0, cv2.THRESH_TOZERO_INV)[1]  # 180 is 0
     return cv2.add(deg, 1)
 
