@@ -186,12 +186,13 @@ def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "
     int
         Exit status: 0.
     """
-    from polcam.sinks.rerun import RerunSink, WebServer, _rerun_executable
+    from polcam.sinks.rerun import RerunSink
+    from polcam.sinks.rerun_web import WebServer, rerun_executable
 
     kind = kind_of(path)
     if not web:
         if kind == "rrd":
-            return subprocess.call([_rerun_executable(), str(path)])
+            return subprocess.call([rerun_executable(), str(path)])
         sink = RerunSink("spawn", raw_every=1, view_scale=1.0)
         try:
             n = log_path(sink, path)

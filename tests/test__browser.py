@@ -110,3 +110,16 @@ def test_capture_serve_shows_the_live_frames_to_a_late_viewer(browser, tmp_path)
         _check(shot, ok, colours, tmp_path / "capture.png")
         assert served.proc.poll() is None  # still capturing: this was the live view
     assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
+
+
+@pytest.mark.browser
+def test_view_web_shows_an_rrd_recording(browser, tmp_path):
+    # the recording `polcam process --rerun` wrote, served from the file with the blueprint in it
+    colours = planted_scene(tmp_path / "raw")
+    rrd = tmp_path / "run.rrd"
+    assert main(["process", str(tmp_path / "raw"), "-o", str(tmp_path / "out"), "--method", "imin",
+                 "--workers", "1", "--quiet", "--rerun", str(rrd)]) == 0
+    with serve(["view", str(rrd), "--web", "--port", "0"], env=_env()) as served:
+        shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60)
+        _check(shot, ok, colours, tmp_path / "rrd.png")
+    assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
