@@ -11,7 +11,6 @@ an ``.rrd``.
 
 from __future__ import annotations
 
-import os
 import signal
 import socket
 import subprocess
@@ -130,10 +129,9 @@ class WebServer:
         cmd = [rerun_executable(), "--serve-web", "--bind", self.bind, "--port", str(grpc),
                "--web-viewer-port", str(web), "--server-memory-limit", str(memory_limit),
                *[str(Path(r)) for r in recordings]]
-        env = {**os.environ, "RERUN_ANALYTICS": "false"}
         self._drain: threading.Thread | None = None
         self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
-            cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
+            cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
             preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
         try:
             self._wait_ready(start_timeout)
