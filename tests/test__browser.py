@@ -93,7 +93,7 @@ def test_view_web_shows_a_processed_folder(browser, tmp_path):
                  "--workers", "1", "--quiet"]) == 0
     with serve(["view", str(tmp_path / "out"), "--web", "--port", "0"], env=_env()) as served:
         assert served.url.startswith("http://127.0.0.1:") and served.server_pids
-        shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60)
+        shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60, width=1200, height=700)
         _check(shot, ok, colours, tmp_path / "view.png")
     assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
 
@@ -106,20 +106,47 @@ def test_capture_serve_shows_the_live_frames_to_a_late_viewer(browser, tmp_path)
                 "--port", "0"], stream="stderr", env=_env()) as served:
         assert served.url.startswith("http://127.0.0.1:") and served.server_pids
         time.sleep(3)  # the viewer opens after the capture started: the server kept the recent frames
-        shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60)
+        shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60, width=1200, height=700)
         _check(shot, ok, colours, tmp_path / "capture.png")
         assert served.proc.poll() is None  # still capturing: this was the live view
     assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
 
 
+def _other_address() -> str | None:
+    """A non-loopback IPv4 address of this machine (``hostname -I``), or None."""
+    import ipaddress
+    import subprocess
+
+    try:
+        out = subprocess.run(["hostname", "-I"], capture_output=True, text=True, timeout=5).stdout.split()
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    for a in out:
+        try:
+            ip = ipaddress.ip_address(a)
+        except ValueError:
+            continue
+        if ip.version == 4 and not ip.is_loopback:
+            return a
+    return None
+
+
 @pytest.mark.browser
-def test_view_web_shows_an_rrd_recording(browser, tmp_path):
-    # the recording `polcam process --rerun` wrote, served from the file with the blueprint in it
+def test_view_web_shows_an_rrd_recording_to_another_machine(browser, tmp_path):
+    # the recording `polcam process --rerun` wrote, served from the file (with the blueprint in it)
+    # on every interface and opened through this machine's network address, as a browser on another
+    # machine would (the page's origin is then not localhost: the data server must allow it)
     colours = planted_scene(tmp_path / "raw")
     rrd = tmp_path / "run.rrd"
     assert main(["process", str(tmp_path / "raw"), "-o", str(tmp_path / "out"), "--method", "imin",
                  "--workers", "1", "--quiet", "--rerun", str(rrd)]) == 0
-    with serve(["view", str(rrd), "--web", "--port", "0"], env=_env()) as served:
-        shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60)
+    import socket
+
+    addr = _other_address()
+    with serve(["view", str(rrd), "--web", "--port", "0", "--bind", "0.0.0.0"], env=_env()) as served:
+        host = socket.gethostname()
+        assert f"http://{host}:" in served.url
+        url = served.url.replace(host, addr) if addr else served.url.replace(host, "127.0.0.1")
+        shot, ok = viewer_screenshot(url, accept=lambda s: shows_planted(s, colours), timeout=60, width=1200, height=700)
         _check(shot, ok, colours, tmp_path / "rrd.png")
     assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)

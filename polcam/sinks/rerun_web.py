@@ -127,8 +127,12 @@ class WebServer:
         viewer_data = f"rerun+http://{url_host}:{grpc}/proxy"
         self.url = f"http://{url_host}:{web}/?url={urllib.parse.quote(viewer_data, safe='')}"
         cmd = [rerun_executable(), "--serve-web", "--bind", self.bind, "--port", str(grpc),
-               "--web-viewer-port", str(web), "--server-memory-limit", str(memory_limit),
-               *[str(Path(r)) for r in recordings]]
+               "--web-viewer-port", str(web), "--server-memory-limit", str(memory_limit)]
+        if not is_loopback(self.bind):
+            # the data server lets only pages from localhost read it; a browser on another machine
+            # loads the page from this machine's name or address, on the web viewer's port
+            cmd += ["--cors-allow-origin", f"http://*:{web}"]
+        cmd += [str(Path(r)) for r in recordings]
         self._drain: threading.Thread | None = None
         self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
             cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
