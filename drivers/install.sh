@@ -4,14 +4,15 @@
 #   Aravis 0.8 and its GObject-introspection typelib (the camera layer),
 #   aravis-tools-cli (arv-tool-0.8) and aravis-tools (arv-fake-gv-camera-0.8, the
 #   GigE Vision emulator the tests use), the PyGObject build dependencies, and
-#   Python's venv/headers where the interpreter lacks them.
+#   Python's venv/headers where the interpreter lacks them, and Chromium (headless,
+#   for the tests that look at the Rerun web viewer).
 #
 # Usage: drivers/install.sh [--check]
 #   --check  exit 0 if everything is installed, 1 otherwise; install nothing.
 set -euo pipefail
 
 PKGS=(gir1.2-aravis-0.8 aravis-tools-cli aravis-tools
-      libgirepository1.0-dev libcairo2-dev pkg-config gcc)
+      libgirepository1.0-dev libcairo2-dev pkg-config gcc chromium)
 
 PY=${PYTHON:-python3}
 if ! "$PY" -c 'import venv, ensurepip' >/dev/null 2>&1; then PKGS+=(python3-venv); fi

@@ -549,7 +549,8 @@ class LiveProcessor:
         sink = self.sink
         if sink is not None:
             sink.log_raw(index, ts, frame.mosaic, bit_depth=frame.bit_depth)  # raw is raw
-            sink.log_polarization(index, ts, ic=maps.ic, dolp=maps.dolp, aolp=maps.aolp, scale=maps.scale)
+            # S0 = 2 Ic
+            sink.log_polarization(index, ts, s0=maps.ic, dolp=maps.dolp, aolp=maps.aolp, scale=2 * maps.scale)
         if self.method == "imin":
             with self._lock:
                 self.separations += 1
@@ -700,6 +701,8 @@ def run_capture(
     live_workers: int = 2,
     progress: Callable[[dict[str, Any]], None] | None = None,
     calibration: Calibration | None = None,
+    rerun_bind: str = "127.0.0.1",
+    rerun_port: int = 9090,
 ) -> dict[str, Any]:
     """Capture from an open, configured camera until a stop condition; return the summary.
 
@@ -747,6 +750,9 @@ def run_capture(
         is saved; the live view (maps and separation) is computed from the
         corrected mosaic, while the saved frames stay exactly as the camera
         sent them.
+    rerun_bind, rerun_port
+        ``rerun="serve"``: address and port of the web viewer (the data on
+        port + 1); see :class:`polcam.sinks.rerun.WebServer`.
 
     Returns
     -------
@@ -833,9 +839,9 @@ def run_capture(
     if rerun is not None:  # before any thread starts: a viewer that cannot start is a plain error
         from polcam.sinks.rerun import RerunSink
 
-        sink = RerunSink(rerun, raw_every=raw_every, view_scale=view_scale)
-        if sink.url and progress is not None:
-            progress({"message": f"Rerun: gRPC server at {sink.url}, web viewer on this machine"})
+        sink = RerunSink(rerun, raw_every=raw_every, view_scale=view_scale, bind=rerun_bind, port=rerun_port)
+        if sink.server is not None and progress is not None:
+            progress({"message": sink.server.message()})
     saver: FrameSaver | None = None
     if out is not None:
         saver = FrameSaver(out, SAVE_FORMATS[save_format], workers=save_workers, queue_frames=save_queue)
@@ -1024,6 +1030,11 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
                                    "or FILE.rrd")
     c.add_argument("--raw-every", type=int, default=10,
                    help="log the full-resolution raw mosaic to Rerun every N processed frames (default 10)")
+    c.add_argument("--port", type=int, default=9090,
+                   help="--rerun serve: port of the web viewer (its data use port + 1; default 9090)")
+    c.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                   help="--rerun serve: address to listen on (default 127.0.0.1, this machine only; "
+                        "0.0.0.0: anyone on this machine's networks can watch)")
     c.add_argument("--view-scale", type=float, default=0.5,
                    help="size of the maps in the Rerun view relative to the polarizer-cell resolution "
                         "(default 0.5: 612x512 for a 5 MP sensor; 1 for full cell resolution)")
@@ -1194,6 +1205,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
                 save_workers=args.save_workers, raw_every=args.raw_every, view_scale=args.view_scale,
                 live_workers=args.live_workers,
                 progress=None if args.quiet else progress, calibration=calibration,
+                rerun_bind=args.bind, rerun_port=args.port,
             )
     finally:
         for s, h in previous.items():

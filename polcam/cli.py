@@ -420,6 +420,9 @@ def build_parser() -> argparse.ArgumentParser:
     from polcam.capture import add_capture_parser
 
     add_capture_parser(sub)
+    from polcam.viewer import add_parser as add_view_parser
+
+    add_view_parser(sub)
     add_calibrate_parser(sub)
 
     d = sub.add_parser("demo", help="run the main job on the bundled fixtures",

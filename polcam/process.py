@@ -322,39 +322,26 @@ def _apply_calibration(frame: Any, path: str, digest: str) -> Any:
 class RunRecording:
     """A run as a Rerun recording (``--rerun FILE.rrd``): one time step per frame.
 
-    Logs, for each finished frame, ``/polarization/s0``, ``/polarization/dolp``,
-    ``/polarization/aolp``, ``/layers/diffuse`` and ``/layers/specular`` (float
-    images read back from the frame's output files) on the ``frame`` sequence
-    timeline, the frame's position in the sorted input list.
+    Logged through :class:`polcam.sinks.rerun.RerunSink` (the entity paths and
+    encodings live capture uses): for each finished frame its outputs read
+    back from disk (``/polarization/*``, ``/layers/*``) and its raw frame
+    (``/camera/raw``) on the ``frame`` sequence timeline, the frame's position
+    in the sorted input list.
     """
 
-    ENTITIES = {"s0": "polarization/s0", "dolp": "polarization/dolp", "aolp": "polarization/aolp",
-                "diffuse": "layers/diffuse", "specular": "layers/specular"}
-
     def __init__(self, path: Path, names: Sequence[str]) -> None:
-        import rerun as rr
+        from polcam.sinks.rerun import RerunSink
 
-        self._rr = rr
         self._index = {n: i for i, n in enumerate(names)}
-        self._rec = rr.RecordingStream("polcam-process")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self._rec.save(str(path))
+        self._sink = RerunSink(path, raw_every=1, view_scale=1.0)
 
     def log_frame(self, folder: Path, ext: str, name: str) -> None:
-        """Log the outputs of one finished frame."""
-        from polcam.io import read_image
-
-        rr = self._rr
-        self._rec.set_time("frame", sequence=self._index.get(name, len(self._index)))
-        for product, entity in self.ENTITIES.items():
-            arr, _ = read_image(folder / f"{product}{ext}")
-            if arr.ndim == 3 and arr.shape[2] == 1:
-                arr = arr[..., 0]
-            self._rec.log(entity, rr.Image(np.ascontiguousarray(arr, dtype=np.float32)))
+        """Log the outputs of one finished frame (``ext``: kept for callers; any format is read)."""
+        self._sink.log_output(self._index.get(name, len(self._index)), folder)
 
     def close(self) -> None:
         """Flush the recording to disk."""
-        self._rec.flush()
+        self._sink.close()
 
 
 #: True in the worker processes of :func:`run`: the frames run in parallel there, so a method with

@@ -1,7 +1,8 @@
 """Where live results go.
 
-- :mod:`polcam.sinks.rerun`: the Rerun live view of a capture (raw, S0, DoLP,
-  AoLP, diffuse, specular, statistics) to a viewer or a ``.rrd`` file.
+- :mod:`polcam.sinks.rerun`: the Rerun view (raw, S0, DoLP, AoLP, diffuse,
+  specular, statistics) of a capture, a batch or ``polcam view``, to a viewer,
+  the web viewer or a ``.rrd`` file: one writer, one meaning per entity path.
 
 Rerun is imported only when a sink is created.
 """

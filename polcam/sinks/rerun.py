@@ -1,43 +1,56 @@
-"""The Rerun live view of a capture (rerun-sdk 0.41).
+"""The Rerun view of polcam's data (rerun-sdk 0.41): one sink for capture, process and view.
 
-Entity paths (DESIGN.md section 3):
+Every writer (``polcam capture --rerun``, ``polcam process --rerun``,
+``polcam view``) logs through :class:`RerunSink`, so each entity path has one
+meaning whoever wrote it:
 
 =============================== ==================================================
 ``/camera/raw``                 the raw mosaic, full resolution, 8-bit (its top 8
                                 significant bits); every ``raw_every``-th frame
-``/polarization/s0``            S0 / 2 (= Ic, the mean over the four angles), 8-bit
-                                grey (mono) or RGB (colour), linear, [0, 1] -> 0..255
+``/polarization/s0``            S0 = (I0 + I45 + I90 + I135) / 2 (the full S0, never
+                                S0 / 2) on a fixed 8-bit scale: value
+                                ``round(255 S0 / 2)``, so 255 is S0 = 2 (every
+                                polarizer image at white); grey (mono) or RGB
 ``/polarization/dolp``          DoLP in [0, 1] as a colour-mapped class image: class
-                                ``1 + round(254 DoLP)``, coloured by viridis
+                                ``1 + round(254 DoLP)``, coloured by viridis; colour:
+                                of the luminance-weighted Stokes vector (R + 2G + B) / 4;
+                                class 0 (black) where S0 is too dark to have one
+                                (its code below ``DARK_CODE``, S0 < ~0.02)
 ``/polarization/aolp``          AoLP as hue (HSV, full saturation and value) through a
                                 class image: class ``1 + round(AoLP in degrees) mod 180``,
-                                hue ``2 x`` AoLP, so 0 and 180 degrees meet
-``/layers/diffuse``             diffuse layer, 8-bit like S0 / 2
-``/layers/specular``            specular layer, 8-bit on the same scale
+                                hue ``2 x`` AoLP, so 0 and 180 degrees meet (cyclic);
+                                class 0 where dark, as DoLP
+``/layers/diffuse``             diffuse layer, on the scale of one polarization image:
+                                value ``round(255 diffuse)``
+``/layers/specular``            specular layer, on the same scale
 ``/stats/fps``                  frames per second received from the camera
 ``/stats/dropped``              frames dropped so far (camera and queues)
 ``/stats/incomplete``           incomplete frames so far
 ``/stats/separation_seconds``   seconds the last separation took
 =============================== ==================================================
 
-Timelines: ``frame`` (a sequence: the capture's frame index) and ``device_time``
-(a duration: the camera's timestamp in ns; GigE Vision cameras count from
-power-up, so it is logged as a duration, not a date).
+Timelines: ``frame`` (a sequence: the capture's frame index, or the frame's
+position in a batch) and ``device_time`` (a duration: the camera's timestamp
+in ns; GigE Vision cameras count from power-up, so it is logged as a
+duration, not a date).
 
-Compact logging: every image goes out as 8-bit, one byte per value.  DoLP
-and AoLP are ``SegmentationImage`` class maps (one byte a pixel) whose colour
-maps are logged once as static ``AnnotationContext`` palettes (the viewer
-colours them; hovering shows the value as the class label).  Maps are
-downscaled by ``view_scale`` (default 0.5: 612 x 512 for the 1224 x 1024
-polarizer-cell maps of a 5 MP sensor, by pixel-area averaging; AoLP by
-nearest neighbour so orientations never average across the 0/180 wrap), and
-the full-resolution raw mosaic goes out every ``raw_every``-th frame only.
-A 5 MP mono frame costs about 2 MB of log data (colour about 3.5 MB) instead
-of the ~60 MB of its float32 maps.
+Why 8 bits: Rerun shows a float image on a range it guesses from the values
+(0..1 when they lie there, else 0..255), so S0 (up to 2) or AoLP in radians
+(up to pi) logged as floats come out black.  Fixed 8-bit codes show the same
+way in every viewer and cost one byte a value.  DoLP and AoLP are
+``SegmentationImage`` class maps whose colour maps are logged once as static
+``AnnotationContext`` palettes (hovering shows the value as the class label).
+Maps can be downscaled by ``view_scale`` (capture's default 0.5, by
+pixel-area averaging; AoLP by nearest neighbour so orientations never average
+across the 0/180 wrap).
 
-Targets: a ``.rrd`` file (written by Rerun's own thread), ``spawn`` (starts a
-viewer; needs a display) or ``serve`` (a gRPC server plus the web viewer on
-this machine, no display needed).
+Targets: a ``.rrd`` file, ``spawn`` (starts the native viewer; needs a
+display) or ``serve``: Rerun's web viewer and its data server (gRPC), run as
+a child process of the Rerun command-line tool bound to ``bind`` (127.0.0.1
+by default: Rerun's own default would be every interface), on ``port`` (the
+web page) and ``port + 1`` (the data).  The server keeps the most recent
+``memory_limit`` of data for viewers that connect later, and stops with the
+sink (and with this process, even when it is killed).
 """
 
 from __future__ import annotations
@@ -49,15 +62,26 @@ from typing import Any
 import cv2
 import numpy as np
 
+from polcam.sinks.rerun_web import LOOPBACK, WebServer, is_loopback
+
 __all__ = [
     "AOLP_LEVELS",
+    "AOLP_TIE_BREAK",
+    "DARK_CODE",
+    "LOOPBACK",
+    "LUMA_WEIGHTS",
+    "TIE_BREAK",
+    "WebServer",
     "DOLP_LEVELS",
     "ENTITIES",
     "RerunSink",
     "aolp_ids",
     "blueprint",
     "dolp_ids",
+    "is_loopback",
+    "luminance_orientation",
     "mosaic_u8",
+    "s0_u8",
     "palettes",
     "unit_u8",
 ]
@@ -91,8 +115,18 @@ def _hue_rgb(n: int) -> np.ndarray:
     return cv2.cvtColor(cv2.merge([hue, full, full]), cv2.COLOR_HSV2RGB)[:, 0, :].copy()
 
 
+#: Added before rounding to a code: exact halves (frequent with 8-bit sensors, whose sums of
+#: four angles are whole numbers) round up whichever float32 rounding error came before, so
+#: two computations of the same value give the same code.  Far below a code, far above
+#: float32 noise (~2e-5 of a code at 255).
+TIE_BREAK = 1.0 / 512.0
+#: The same for AoLP in degrees, wider: the live path's OpenCV ``cartToPolar`` differs from
+#: ``arctan2`` by up to ~0.005 degrees, and exact halves (22.5, 67.5, ...: S1 = +-S2) are frequent.
+AOLP_TIE_BREAK = 1.0 / 64.0
+
+
 def unit_u8(img: np.ndarray, *, scale: float = 1.0) -> np.ndarray:
-    """``round(clip(img * scale, 0, 1) * 255)`` as uint8.
+    """``round(clip(img * scale, 0, 1) * 255)`` as uint8 (halves round up, :data:`TIE_BREAK`).
 
     Parameters
     ----------
@@ -112,7 +146,7 @@ def unit_u8(img: np.ndarray, *, scale: float = 1.0) -> np.ndarray:
         return a  # already 8-bit display values
     if a.dtype not in (np.uint8, np.uint16, np.float32):
         a = a.astype(np.float32)
-    return cv2.addWeighted(a, 255.0 * float(scale), a, 0.0, 0.0, dtype=cv2.CV_8U)
+    return cv2.addWeighted(a, 255.0 * float(scale), a, 0.0, TIE_BREAK, dtype=cv2.CV_8U)
 
 
 #: DoLP classes: DoLP d is class 1 + round(254 d); class 0 is not used.
@@ -124,13 +158,13 @@ AOLP_LEVELS = 180
 def dolp_ids(dolp: np.ndarray) -> np.ndarray:
     """DoLP (H, W) in [0, 1] as class ids ``1 + round(254 DoLP)`` (uint8, 1..255)."""
     a = np.ascontiguousarray(dolp, dtype=np.float32)
-    return cv2.addWeighted(a, DOLP_LEVELS - 1.0, a, 0.0, 1.0, dtype=cv2.CV_8U)
+    return cv2.addWeighted(a, DOLP_LEVELS - 1.0, a, 0.0, 1.0 + TIE_BREAK, dtype=cv2.CV_8U)
 
 
 def aolp_ids(aolp: np.ndarray) -> np.ndarray:
     """AoLP (H, W) in radians, [0, pi), as class ids ``1 + round(degrees) mod 180`` (uint8, 1..180)."""
     a = np.ascontiguousarray(aolp, dtype=np.float32)
-    deg = cv2.addWeighted(a, 180.0 / np.pi, a, 0.0, 0.0, dtype=cv2.CV_8U)  # 0..180
+    deg = cv2.addWeighted(a, 180.0 / np.pi, a, 0.0, AOLP_TIE_BREAK, dtype=cv2.CV_8U)  # 0..180
     deg = cv2.threshold(deg, AOLP_LEVELS - 1, 0, cv2.THRESH_TOZERO_INV)[1]  # 180 is 0
     return cv2.add(deg, 1)
 
@@ -142,7 +176,21 @@ def palettes() -> dict[str, list[tuple[int, str, tuple[int, int, int]]]]:
     dolp = [(i + 1, f"DoLP {i / (DOLP_LEVELS - 1):.3f}",
              tuple(int(c) for c in vir[round(i * 255 / (DOLP_LEVELS - 1))])) for i in range(DOLP_LEVELS)]
     aolp = [(i + 1, f"AoLP {i} deg", tuple(int(c) for c in hues[i])) for i in range(AOLP_LEVELS)]
-    return {"dolp": dolp, "aolp": aolp}  # type: ignore[dict-item]
+    dark = (0, f"too dark (S0 code < {DARK_CODE})", (0, 0, 0))
+    return {"dolp": [dark, *dolp], "aolp": [dark, *aolp]}  # type: ignore[dict-item]
+
+
+#: DoLP and AoLP are not shown (class 0, black) where the S0 code is below this, i.e. S0 < 2.5 / 127.5
+#: (about 1 % of white): there they are the orientation of noise, a speckle that hides the scene.
+DARK_CODE = 3
+
+
+def _mask_dark(ids: np.ndarray, s0_code: np.ndarray) -> np.ndarray:
+    """``ids`` with class 0 where the S0 code (brightest channel) is below :data:`DARK_CODE`."""
+    level = s0_code.max(axis=-1) if s0_code.ndim == 3 else s0_code
+    out = ids.copy()
+    out[level < DARK_CODE] = 0
+    return out
 
 
 def _resize(img: np.ndarray, scale: float, *, nearest: bool = False) -> np.ndarray:
@@ -160,33 +208,93 @@ def mosaic_u8(mosaic: np.ndarray, *, bit_depth: int) -> np.ndarray:
     return cv2.convertScaleAbs(np.ascontiguousarray(mosaic), alpha=1.0 / (1 << (int(bit_depth) - 8)))
 
 
+def s0_u8(s0: np.ndarray, *, scale: float = 1.0) -> np.ndarray:
+    """The 8-bit code of ``/polarization/s0``: ``round(255 * clip(S0 / 2, 0, 1))``, uint8.
+
+    Parameters
+    ----------
+    s0
+        (H, W) or (H, W, 3): ``s0 * scale`` is S0 = (I0 + I45 + I90 + I135) / 2
+        of intensities normalised to [0, 1], so S0 is in [0, 2].
+    scale
+        Factor from the stored values to S0 (e.g. ``2 / 255`` for 8-bit Ic values).
+    """
+    return unit_u8(s0, scale=0.5 * float(scale))
+
+
+#: Weights of the luminance-weighted Stokes vector of a colour stack, (R + 2 G + B) / 4.
+LUMA_WEIGHTS = (0.25, 0.5, 0.25)
+
+
+def luminance_orientation(s0: np.ndarray, dolp: np.ndarray, aolp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """DoLP and AoLP of the luminance-weighted Stokes vector of per-channel colour maps.
+
+    Parameters
+    ----------
+    s0, dolp, aolp
+        (h, w, 3) per-channel S0, DoLP in [0, 1] and AoLP in radians [0, pi).
+
+    Returns
+    -------
+    dolp, aolp : numpy.ndarray
+        (h, w) float32 of ``sum_c w_c (S0, S1, S2)_c`` with weights
+        :data:`LUMA_WEIGHTS` (the live colour view's definition), DoLP clipped
+        to [0, 1] (0 where S0 is 0), AoLP in [0, pi).
+    """
+    w = np.asarray(LUMA_WEIGHTS, dtype=np.float64)
+    s0 = np.asarray(s0, dtype=np.float64)
+    mag = s0 * np.asarray(dolp, dtype=np.float64)
+    two = 2.0 * np.asarray(aolp, dtype=np.float64)
+    l0 = s0 @ w
+    l1 = (mag * np.cos(two)) @ w
+    l2 = (mag * np.sin(two)) @ w
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(l0 > 0, np.hypot(l1, l2) / l0, 0.0)
+    a = np.mod(0.5 * np.arctan2(l2, l1), np.pi)
+    a = np.where(a >= np.pi, 0.0, a)
+    return np.clip(d, 0.0, 1.0).astype(np.float32), a.astype(np.float32)
+
+
 def blueprint() -> Any:
-    """The layout of the live view: images on two rows, the statistics plot beside the layers."""
+    """The one layout of capture, process and view.
+
+    Raw, S0 and DoLP on the first row, AoLP, diffuse and specular on the
+    second (all on the ``frame`` timeline), and below them the capture
+    statistics as time series: frame rate, dropped and incomplete frames,
+    separation time.
+    """
     import rerun.blueprint as rrb
 
     def view(role: str, name: str) -> Any:
         return rrb.Spatial2DView(origin=ENTITIES[role], name=name)
 
+    def plot(roles: tuple[str, ...], name: str) -> Any:
+        return rrb.TimeSeriesView(origin="/stats", contents=[ENTITIES[r] for r in roles], name=name)
+
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(view("raw", "raw"), view("s0", "S0"), view("dolp", "DoLP"), view("aolp", "AoLP")),
-            rrb.Horizontal(view("diffuse", "diffuse"), view("specular", "specular"),
-                           rrb.TimeSeriesView(origin="/stats", name="statistics")),
+            rrb.Horizontal(view("raw", "raw"), view("s0", "S0"), view("dolp", "DoLP (viridis, 0..1)")),
+            rrb.Horizontal(view("aolp", "AoLP (hue, 0..180 deg)"), view("diffuse", "diffuse"),
+                           view("specular", "specular")),
+            rrb.Horizontal(plot(("fps",), "frames per second"), plot(("dropped", "incomplete"), "dropped, incomplete"),
+                           plot(("separation_seconds",), "separation seconds")),
+            row_shares=[4, 4, 1.5],
         ),
+        rrb.TimePanel(timeline="frame", state="collapsed"),
         collapse_panels=True,
     )
 
 
 class RerunSink:
-    """Log a capture to Rerun.
+    """Log polcam's data to Rerun: the one writer of every entity path.
 
     Parameters
     ----------
     target
-        ``"spawn"`` (start a native viewer), ``"serve"`` (gRPC server + web
-        viewer), or a file path ending in ``.rrd``.
+        ``"spawn"`` (start a native viewer), ``"serve"`` (web viewer, see
+        :class:`WebServer`), or a file path ending in ``.rrd``.
     application_id
-        Rerun application id.
+        Rerun application id (``polcam``: the blueprint applies to it).
     recording_id
         Rerun recording id (default: a fresh one).
     raw_every
@@ -194,8 +302,8 @@ class RerunSink:
         calls (1: every time).
     view_scale
         Size factor of the logged maps (0 < view_scale <= 1).
-    open_browser
-        ``serve``: open a browser on the web viewer.
+    bind, port, memory_limit
+        ``serve``: see :class:`WebServer`.
 
     Notes
     -----
@@ -206,7 +314,7 @@ class RerunSink:
 
     def __init__(self, target: str | Path, *, application_id: str = "polcam",
                  recording_id: str | None = None, raw_every: int = 10, view_scale: float = 0.5,
-                 open_browser: bool = False) -> None:
+                 bind: str = LOOPBACK, port: int = 9090, memory_limit: str = "1GiB") -> None:
         import rerun as rr
 
         if int(raw_every) < 1:
@@ -220,13 +328,15 @@ class RerunSink:
         self._lock = threading.Lock()
         self.target = str(target)
         self.url: str | None = None
+        self.server: WebServer | None = None
         rec = rr.RecordingStream(application_id, recording_id=recording_id)
         bp = blueprint()
         if self.target == "spawn":
             rec.spawn(default_blueprint=bp)
         elif self.target == "serve":
-            self.url = rec.serve_grpc(default_blueprint=bp)
-            rr.serve_web_viewer(connect_to=self.url, open_browser=open_browser)
+            self.server = WebServer(bind=bind, port=port, memory_limit=memory_limit)
+            self.url = self.server.url
+            rec.connect_grpc(self.server.grpc_url, default_blueprint=bp)
         else:
             path = Path(self.target)
             if path.suffix.lower() != ".rrd":
@@ -262,18 +372,30 @@ class RerunSink:
             self._image("raw", img)
         return True
 
-    def log_polarization(self, index: int, timestamp_ns: int | None, *, ic: np.ndarray,
+    def log_polarization(self, index: int, timestamp_ns: int | None, *, s0: np.ndarray,
                          dolp: np.ndarray, aolp: np.ndarray, scale: float = 1.0) -> None:
-        """Log S0, DoLP and AoLP as 8-bit images.
+        """Log S0, DoLP and AoLP.
 
-        ``ic * scale`` is Ic = S0 / 2 normalised by the white level ([0, 1]),
-        logged at ``/polarization/s0``; ``dolp`` in [0, 1]; ``aolp`` in
-        radians, [0, pi).
+        Parameters
+        ----------
+        s0
+            (h, w) or (h, w, 3): ``s0 * scale`` is S0 = (I0 + I45 + I90 + I135) / 2
+            normalised by the white level ([0, 2]); logged as :func:`s0_u8`.
+        dolp
+            (h, w) DoLP in [0, 1]; or (h, w, 3) per colour channel, then the
+            DoLP and AoLP of the luminance-weighted Stokes vector are logged
+            (:func:`luminance_orientation`, what the live colour view shows).
+        aolp
+            (h, w) AoLP in radians, [0, pi); or (h, w, 3) with ``dolp``.
+        scale
+            Factor from ``s0``'s values to S0.
         """
+        if np.ndim(dolp) == 3:
+            dolp, aolp = luminance_orientation(np.asarray(s0, dtype=np.float32) * np.float32(scale), dolp, aolp)
         v = self.view_scale
-        s0_img = _resize(unit_u8(ic, scale=scale), v)
-        dolp_img = _resize(dolp_ids(dolp), v)
-        aolp_img = _resize(aolp_ids(aolp), v, nearest=True)
+        s0_img = _resize(s0_u8(s0, scale=scale), v)
+        dolp_img = _mask_dark(_resize(dolp_ids(dolp), v), s0_img)
+        aolp_img = _mask_dark(_resize(aolp_ids(aolp), v, nearest=True), s0_img)
         with self._lock:
             self._time(index, timestamp_ns)
             self._image("s0", s0_img)
@@ -305,9 +427,82 @@ class RerunSink:
                 self._rec.log(ENTITIES[name], self._rr.Scalars(float(value)))
                 self.logged[name] += 1
 
+    def log_products(self, index: int, products: dict[str, np.ndarray], *, timestamp_ns: int | None = None,
+                     frame: Any = None) -> None:
+        """Log one frame's products as process writes them (and view reads them back).
+
+        Parameters
+        ----------
+        index
+            The ``frame`` time.
+        products
+            ``s0`` (S0, [0, 2]), ``dolp``, ``aolp`` (radians), ``diffuse``,
+            ``specular`` (float arrays, (h, w) or (h, w, 3); a missing key is
+            not logged).
+        timestamp_ns
+            The device time, if known.
+        frame
+            The raw :class:`polcam.frame.Frame`, logged at ``/camera/raw``
+            (subject to ``raw_every``), or None.
+        """
+        if frame is not None:
+            self.log_raw(index, timestamp_ns, frame.mosaic, bit_depth=frame.bit_depth)
+        if all(k in products for k in ("s0", "dolp", "aolp")):
+            self.log_polarization(index, timestamp_ns, s0=products["s0"], dolp=products["dolp"],
+                                  aolp=products["aolp"])
+        if "diffuse" in products and "specular" in products:
+            self.log_layers(index, timestamp_ns, diffuse=products["diffuse"], specular=products["specular"])
+
+    def log_output(self, index: int, folder: str | Path) -> None:
+        """Log a frame folder written by ``polcam process`` (its files read back).
+
+        Reads ``s0``, ``dolp``, ``aolp``, ``diffuse``, ``specular`` (``.exr``
+        or ``.tif``) and ``meta.json``; the raw frame named there (``input``)
+        is logged too when it still exists, and its ``timestamp_ns`` as the
+        device time.
+
+        Raises
+        ------
+        FrameReadError
+            A product file that is missing or unreadable.
+        """
+        import json
+
+        from polcam.errors import FrameReadError
+        from polcam.io import read_frame, read_image
+
+        folder = Path(folder)
+        products: dict[str, np.ndarray] = {}
+        for name in ("s0", "dolp", "aolp", "diffuse", "specular"):
+            found = [folder / f"{name}{ext}" for ext in (".exr", ".tif", ".tiff") if (folder / f"{name}{ext}").is_file()]
+            if not found:
+                raise FrameReadError(f"no {name}.exr or {name}.tif: expected a polcam process frame folder", path=folder)
+            arr, _ = read_image(found[0])
+            if arr.ndim == 3 and arr.shape[2] == 1:
+                arr = arr[..., 0]
+            if arr.dtype == np.uint16:  # --format tiff16: [0, 1] scaled to 0..65535
+                arr = arr.astype(np.float32) / 65535.0
+            products[name] = np.ascontiguousarray(arr, dtype=np.float32)
+        meta: dict[str, Any] = {}
+        try:
+            meta = json.loads((folder / "meta.json").read_text())
+        except (OSError, ValueError):
+            pass
+        ts = (meta.get("frame") or {}).get("timestamp_ns")
+        frame = None
+        src = meta.get("input")
+        if src and Path(src).is_file():
+            try:
+                frame = read_frame(src, layout=meta.get("layout"))
+            except (ValueError, OSError):
+                frame = None  # the view goes on without the raw panel
+        self.log_products(index, products, timestamp_ns=None if ts is None else int(ts), frame=frame)
+
     def close(self) -> None:
-        """Flush everything to the target and disconnect."""
+        """Flush everything to the target; ``serve`` stops the web viewer."""
         with self._lock:
             self._rec.flush()
-            if self.target not in ("spawn", "serve"):
+            if self.target != "spawn":
                 self._rec.disconnect()
+            if self.server is not None:
+                self.server.stop()

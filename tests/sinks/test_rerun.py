@@ -15,6 +15,7 @@ from polcam.sinks.rerun import (
     dolp_ids,
     mosaic_u8,
     palettes,
+    s0_u8,
     unit_u8,
 )
 
@@ -77,13 +78,13 @@ def test_palettes_match_the_colour_maps():
 
     pal = palettes()
     dolp = {i: c for i, _, c in pal["dolp"]}
-    assert sorted(dolp) == list(range(1, 256))
+    assert sorted(dolp) == list(range(0, 256)) and dolp[0] == (0, 0, 0)  # 0: too dark to say
     vir = matplotlib.colormaps["viridis"]
     for i in (1, 64, 128, 200, 255):
         ref = np.array(vir((i - 1) / 254)[:3]) * 255
         assert np.abs(np.array(dolp[i]) - ref).max() <= 3, (i, dolp[i], ref)
     aolp = {i: (label, c) for i, label, c in pal["aolp"]}
-    assert sorted(aolp) == list(range(1, 181))
+    assert sorted(aolp) == list(range(0, 181)) and aolp[0][1] == (0, 0, 0)
     # AoLP a degrees is hue 2a: 0 red, 60 (hue 120) green, 120 (hue 240) blue
     assert aolp[1] == ("AoLP 0 deg", (255, 0, 0))
     assert aolp[61][1] == (0, 255, 0) and aolp[121][1] == (0, 0, 255)
@@ -107,7 +108,7 @@ def test_sink_writes_the_entities_of_the_design(tmp_path):
     mosaic = rng.integers(0, 4096, (16, 24)).astype(np.uint16)
     for i in range(3):
         sink.log_raw(i, 1000 + i, mosaic, bit_depth=12)
-        sink.log_polarization(i, 1000 + i, ic=ic, dolp=dolp, aolp=aolp)
+        sink.log_polarization(i, 1000 + i, s0=2 * ic, dolp=dolp, aolp=aolp)
         sink.log_layers(i, 1000 + i, diffuse=ic * 0.5, specular=ic * 0.5)
         sink.log_stats(i, 1000 + i, fps=20.0, dropped=i, incomplete=0, separation_seconds=0.01)
     sink.close()
@@ -120,7 +121,7 @@ def test_sink_writes_the_entities_of_the_design(tmp_path):
     # images are 8-bit at half the size given; DoLP is a class image with its palette static
     fmt, buf = _image(data[ENTITIES["s0"]]["batches"], "Image", 1)
     assert (fmt["width"], fmt["height"]) == (6, 4) and buf.size == 24
-    expect = unit_u8(ic).reshape(4, 2, 6, 2).astype(np.float64).mean(axis=(1, 3))
+    expect = s0_u8(2 * ic).reshape(4, 2, 6, 2).astype(np.float64).mean(axis=(1, 3))
     assert np.abs(buf.reshape(4, 6) - expect).max() <= 1.0
     fmt, buf = _image(data[ENTITIES["raw"]]["batches"], "Image", 2)
     np.testing.assert_array_equal(buf.reshape(16, 24), mosaic_u8(mosaic, bit_depth=12))
@@ -162,3 +163,115 @@ def test_blueprint_views_every_image_entity():
     for role in ("raw", "s0", "dolp", "aolp", "diffuse", "specular"):
         assert origins[ENTITIES[role]] == "Spatial2DView"
     assert origins["/stats"] == "TimeSeriesView"
+
+
+def test_s0_is_logged_as_s0_on_a_fixed_8_bit_scale():
+    # S0 = (I0 + I45 + I90 + I135) / 2 is in [0, 2] for images in [0, 1]: code round(255 S0 / 2)
+    s0 = np.array([[0.0, 0.5, 1.0, 2.0, 2.5]], dtype=np.float32)
+    np.testing.assert_array_equal(s0_u8(s0), [[0, 64, 128, 255, 255]])
+    # 8-bit Ic values (what the live colour maps hold) with the factor from Ic to S0
+    ic = np.array([[0, 100, 255]], dtype=np.uint8)
+    np.testing.assert_array_equal(s0_u8(ic, scale=2 / 255), ic)
+
+
+def test_colour_dolp_and_aolp_are_those_of_the_luminance_weighted_stokes_vector():
+    from polcam.sinks.rerun import luminance_orientation
+    from polcam.stokes import aolp as st_aolp
+    from polcam.stokes import dolp as st_dolp
+    from polcam.stokes import stokes
+    from polcam.synth.patterns import stack_from_stokes
+
+    rng = np.random.default_rng(7)
+    s0 = rng.uniform(0.2, 1.8, (5, 6, 3))
+    dolp = rng.uniform(0.0, 1.0, (5, 6, 3))
+    aolp = rng.uniform(0.0, np.pi, (5, 6, 3))
+    stack = stack_from_stokes(s0, dolp, aolp).astype(np.float64)          # (4, 5, 6, 3)
+    lum = stack @ np.array([0.25, 0.5, 0.25])                              # (R + 2G + B) / 4 per angle
+    ref = stokes(lum)
+    d, a = luminance_orientation(s0, dolp, aolp)
+    np.testing.assert_allclose(d, st_dolp(ref), atol=1e-5)
+    diff = np.angle(np.exp(2j * (a - st_aolp(ref)))) / 2
+    assert np.abs(diff).max() < 1e-4
+    assert a.min() >= 0 and a.max() < np.pi
+
+
+def _images(path) -> dict[str, np.ndarray]:
+    """{entity: frame 0's image as (h, w[, c]) uint8} of a .rrd, read back with Rerun's reader."""
+    out = {}
+    for entity, e in _read(path).items():
+        for prefix in ("Image", "SegmentationImage"):
+            if any(f"{prefix}:buffer" in rb.schema.names for rb in e["batches"]):
+                fmt, buf = _image([rb for rb in e["batches"] if f"{prefix}:buffer" in rb.schema.names], prefix, 0)
+                img = buf.reshape(fmt["height"], fmt["width"], -1)
+                out[entity] = img[..., 0] if img.shape[2] == 1 else img
+    return out
+
+
+def test_the_same_frame_through_capture_and_process_logs_the_same_values(tmp_path):
+    # one frame of a real mono sensor (fixtures/raw/fruits_crop, IMX250MZR, 8-bit): live capture
+    # (replay camera, live maps, imin layers) and `polcam process --rerun` (demosaic, Stokes, imin,
+    # files written and read back) must put the same values at every image entity path
+    import shutil
+    from pathlib import Path
+
+    from polcam.camera.replay import ReplayCamera
+    from polcam.capture import run_capture
+    from polcam.cli import main
+
+    fixtures = Path(__file__).resolve().parents[2] / "fixtures" / "raw"
+    raw = tmp_path / "raw"
+    raw.mkdir()
+    for ext in (".png", ".json"):
+        shutil.copy(fixtures / f"fruits_crop{ext}", raw / f"fruits_crop{ext}")
+    live = tmp_path / "live.rrd"
+    with ReplayCamera(raw) as cam:
+        summary = run_capture(cam, out=None, separate="imin", rerun=live, raw_every=1, view_scale=1.0)
+    assert summary["frames_processed"] == 1
+    batch = tmp_path / "batch.rrd"
+    assert main(["process", str(raw), "-o", str(tmp_path / "out"), "--method", "imin", "--workers", "1",
+                 "--rerun", str(batch), "--quiet"]) == 0
+    a, b = _images(live), _images(batch)
+    roles = ("raw", "s0", "dolp", "aolp", "diffuse", "specular")
+    assert {ENTITIES[r] for r in roles} <= set(a) and {ENTITIES[r] for r in roles} <= set(b)
+    assert a[ENTITIES["raw"]].shape == (512, 640) and a[ENTITIES["s0"]].shape == (256, 320)
+    for role in roles:
+        x, y = a[ENTITIES[role]].astype(int), b[ENTITIES[role]].astype(int)
+        assert x.shape == y.shape, role
+        diff = np.abs(x - y)
+        if role == "aolp":
+            # classes wrap (1 and 180 are neighbours); the live AoLP comes from OpenCV's cartToPolar
+            # (within ~0.005 degrees of arctan2): a pixel right at a class boundary may cross it
+            diff = np.minimum(diff, 180 - diff)
+            assert diff.max() <= 1 and (diff == 0).mean() > 0.999, (role, (diff == 0).mean())
+            continue
+        # the same formulas in float32 passes: exact halves round alike (TIE_BREAK), so all equal
+        assert diff.max() == 0, (role, diff.max(), (diff == 0).mean())
+    # and S0 is S0: the processed s0 file, on the code's scale
+    from polcam.io import read_image
+
+    s0_file, _ = read_image(tmp_path / "out" / "fruits_crop" / "s0.exr")
+    np.testing.assert_array_equal(b[ENTITIES["s0"]], s0_u8(s0_file[..., 0] if s0_file.ndim == 3 else s0_file))
+    assert 0.9 < s0_file.max() <= 2.0  # a bright scene: S0 above 1 exists, the code does not saturate below 2
+
+
+def test_dolp_and_aolp_are_not_shown_where_s0_is_too_dark(tmp_path):
+    from polcam.sinks.rerun import DARK_CODE
+
+    path = tmp_path / "dark.rrd"
+    sink = RerunSink(path, view_scale=1.0)
+    s0 = np.array([[0.0, 2.4 / 127.5, 2.6 / 127.5, 1.0]], dtype=np.float32)  # codes 0, 2, 3, 128
+    dolp = np.full((1, 4), 0.5, np.float32)
+    aolp = np.full((1, 4), np.deg2rad(30.0), np.float32)
+    sink.log_polarization(0, None, s0=s0, dolp=dolp, aolp=aolp)
+    # colour: the brightest channel decides
+    rgb = np.stack([s0, np.zeros_like(s0), np.zeros_like(s0)], axis=-1)
+    sink.log_polarization(1, None, s0=rgb, dolp=np.repeat(dolp[..., None], 3, -1),
+                          aolp=np.repeat(aolp[..., None], 3, -1))
+    sink.close()
+    data = _read(path)
+    assert DARK_CODE == 3
+    for frame in (0, 1):
+        _, d = _image(data[ENTITIES["dolp"]]["batches"], "SegmentationImage", frame)
+        _, a = _image(data[ENTITIES["aolp"]]["batches"], "SegmentationImage", frame)
+        np.testing.assert_array_equal(d, [0, 0, 128, 128])
+        np.testing.assert_array_equal(a, [0, 0, 31, 31])

@@ -1,0 +1,210 @@
+"""Rerun's web viewer and its data server, bound to one address, as a child process.
+
+Rerun's Python SDK serves the web viewer's page on every interface and has no
+option to narrow it; the Rerun command-line tool shipped with rerun-sdk
+(``rerun --serve-web --bind ADDR``) binds both the page and the data (gRPC)
+server to one address.  :class:`WebServer` runs that tool as a child process
+bound to 127.0.0.1 unless told otherwise; :class:`polcam.sinks.rerun.RerunSink`
+(``serve``) streams to it, ``polcam view --web`` streams to it or has it load
+an ``.rrd``.
+"""
+
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.parse
+from pathlib import Path
+
+__all__ = ["LOOPBACK", "WebServer", "is_loopback", "rerun_executable"]
+
+
+#: The default address of the web viewer: this machine only.
+LOOPBACK = "127.0.0.1"
+
+
+def is_loopback(address: str) -> bool:
+    """True for an address only this machine can reach (127.0.0.0/8, ::1, localhost)."""
+    import ipaddress
+
+    if address == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(address).is_loopback
+    except ValueError:
+        return False
+
+
+def rerun_executable() -> str:
+    """The Rerun command-line tool shipped with rerun-sdk (its ``rerun_cli`` package)."""
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).parent / "rerun"
+        if exe.is_file():
+            return str(exe)
+    except ImportError:
+        pass
+    import shutil
+
+    found = shutil.which("rerun")
+    if found is None:
+        from polcam.errors import PolcamError
+
+        raise PolcamError("the Rerun command-line tool (rerun-sdk's rerun_cli) is not installed")
+    return found
+
+
+def _free_ports(n: int) -> list[int]:
+    socks = []
+    try:
+        for _ in range(n):
+            s = socket.socket()
+            s.bind((LOOPBACK, 0))
+            socks.append(s)
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    import ctypes
+
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+class WebServer:
+    """Rerun's web viewer and its data server, bound to one address, as a child process.
+
+    Parameters
+    ----------
+    bind
+        Address to listen on (default 127.0.0.1: this machine only; 0.0.0.0
+        opens it to every network this machine is on).
+    port
+        Port of the web page; the data (gRPC) port is ``port + 1``.  0 picks
+        two free ports.
+    recordings
+        ``.rrd`` files the server loads and serves.
+    memory_limit
+        Data kept for viewers that connect later (oldest dropped first), e.g.
+        ``"1GiB"`` or ``"25%"``.
+    start_timeout
+        Seconds to wait for both ports to accept connections.
+
+    Attributes
+    ----------
+    url
+        The page to open in a browser (it connects the viewer to the data).
+    grpc_url
+        Where an SDK streams data to (``rerun+http://.../proxy``).
+
+    Notes
+    -----
+    The child gets SIGTERM when the thread that started it ends (Linux
+    ``PR_SET_PDEATHSIG``), so no server outlives polcam even when it is killed.
+    """
+
+    def __init__(self, *, bind: str = LOOPBACK, port: int = 9090, recordings: tuple[str | Path, ...] = (),
+                 memory_limit: str = "1GiB", start_timeout: float = 30.0) -> None:
+        from polcam.errors import PolcamError
+
+        if not 0 <= int(port) <= 65534:
+            raise PolcamError(f"port {port!r}: expected 0 (any free port) or 1..65534 (the data use port + 1)")
+        web, grpc = _free_ports(2) if int(port) == 0 else (int(port), int(port) + 1)
+        self.bind = str(bind)
+        self.port, self.grpc_port = web, grpc
+        host = LOOPBACK if self.bind in ("0.0.0.0", "::", "127.0.0.1") else self.bind
+        self._probe = host if is_loopback(host) or self.bind not in ("0.0.0.0", "::") else LOOPBACK
+        public = host if self.bind not in ("0.0.0.0", "::") else socket.gethostname()
+        url_host = f"[{public}]" if ":" in public else public
+        self.grpc_url = f"rerun+http://{'[' + host + ']' if ':' in host else host}:{grpc}/proxy"
+        viewer_data = f"rerun+http://{url_host}:{grpc}/proxy"
+        self.url = f"http://{url_host}:{web}/?url={urllib.parse.quote(viewer_data, safe='')}"
+        cmd = [rerun_executable(), "--serve-web", "--bind", self.bind, "--port", str(grpc),
+               "--web-viewer-port", str(web), "--server-memory-limit", str(memory_limit)]
+        if not is_loopback(self.bind):
+            # the data server lets only pages from localhost read it; a browser on another machine
+            # loads the page from this machine's name or address, on the web viewer's port
+            cmd += ["--cors-allow-origin", f"http://*:{web}"]
+        cmd += [str(Path(r)) for r in recordings]
+        self._drain: threading.Thread | None = None
+        self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+            cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+            preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
+        try:
+            self._wait_ready(start_timeout)
+        except BaseException:
+            self.stop()
+            raise
+
+    @property
+    def pid(self) -> int | None:
+        """Process id of the server (None once stopped)."""
+        return None if self._proc is None else self._proc.pid
+
+    def _wait_ready(self, timeout: float) -> None:
+        from polcam.errors import PolcamError
+
+        end = time.monotonic() + timeout
+        pending = {self.port, self.grpc_port}
+        while pending:
+            assert self._proc is not None
+            if self._proc.poll() is not None:
+                err = (self._proc.stderr.read() if self._proc.stderr else b"").decode(errors="replace")
+                lines = [x for x in err.splitlines() if "ERROR" in x or "rror" in x] or err.splitlines()[-3:]
+                raise PolcamError(f"the Rerun web viewer on {self.bind}:{self.port}/{self.grpc_port} did not "
+                                  f"start (ports in use? try --port): {' '.join(lines)[-400:]}")
+            for p in list(pending):
+                try:
+                    socket.create_connection((self._probe, p), timeout=0.5).close()
+                    pending.discard(p)
+                except OSError:
+                    pass
+            if pending:
+                if time.monotonic() > end:
+                    raise PolcamError(f"the Rerun web viewer did not open ports {sorted(pending)} in {timeout:.0f} s")
+                time.sleep(0.1)
+        if self._proc is not None and self._proc.stderr is not None:
+            # keep draining its log so the child never blocks on a full pipe
+            self._drain = threading.Thread(target=self._proc.stderr.read, daemon=True)
+            self._drain.start()
+
+    def message(self) -> str:
+        """What to tell the user: the URL to open, and who else can open it."""
+        text = f"Rerun web viewer: open {self.url}"
+        if not is_loopback(self.bind):
+            text += (f"\nwarning: listening on {self.bind} (ports {self.port} and {self.grpc_port}): anyone on "
+                     "the networks this machine is on can watch (use --bind 127.0.0.1 for this machine only)")
+        else:
+            text += " (this machine only; --bind ADDR to open it to a network)"
+        return text
+
+    def stop(self) -> None:
+        """Stop the server (SIGTERM, then SIGKILL after 5 s) and wait for it."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        if self._drain is not None:
+            self._drain.join(5)
+            self._drain = None
+        if proc.stderr is not None:
+            proc.stderr.close()
+
+    def __enter__(self) -> WebServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,257 @@
+"""``polcam view PATH [--web] [--port N] [--bind ADDR]``: look at recordings, batches and raw folders.
+
+PATH is one of
+
+* a Rerun recording (``.rrd``: ``polcam capture --rerun FILE.rrd``,
+  ``polcam process --rerun FILE.rrd``, or any other);
+* a ``polcam process`` output folder: every frame folder under it (one with a
+  ``meta.json``) is read back from disk (diffuse, specular, s0, dolp, aolp
+  as ``.exr`` or ``.tif``; the raw frame named in ``meta.json`` when it still
+  exists), in name order, one ``frame`` time step each;
+* a folder of raw frames: each is demosaiced (:func:`polcam.demosaic` with
+  the default method, at the polarizer-cell resolution as ``polcam process``
+  does by default) and separated with the default method for its form
+  (:func:`polcam.separate` without a method) on the fly.
+
+Everything is logged through :class:`polcam.sinks.rerun.RerunSink`, with the
+same entity paths, encodings and blueprint as a live capture.  Without
+``--web`` the native viewer opens (it needs a display); with ``--web``
+Rerun's web viewer is served (:class:`polcam.sinks.rerun.WebServer`) on
+127.0.0.1 unless ``--bind`` says otherwise, the URL to open is printed, and
+the server runs until Ctrl-C or SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+__all__ = ["add_parser", "frame_folders", "kind_of", "log_path", "run", "view"]
+
+
+def kind_of(path: str | Path) -> str:
+    """What ``path`` is: ``"rrd"``, ``"processed"`` (a process output folder) or ``"raw"``.
+
+    Raises
+    ------
+    FrameReadError
+        A path that is none of these (named, with what was expected).
+    """
+    from polcam.errors import FrameReadError
+    from polcam.io import RAW_EXTENSIONS
+
+    p = Path(path)
+    expected = "an .rrd recording, a `polcam process` output folder or a folder of raw frames"
+    if p.is_file():
+        if p.suffix.lower() == ".rrd":
+            return "rrd"
+        raise FrameReadError(f"not a Rerun recording (.rrd): expected {expected}", path=p)
+    if not p.is_dir():
+        raise FrameReadError(f"no such file or folder: expected {expected}", path=p)
+    if (p / "meta.json").is_file() or any(True for _ in frame_folders(p)):
+        return "processed"
+    if any(f.is_file() and f.suffix.lower() in RAW_EXTENSIONS and not f.name.startswith(".") for f in p.iterdir()):
+        return "raw"
+    raise FrameReadError(f"holds neither frame folders with meta.json nor raw frames: expected {expected}", path=p)
+
+
+def frame_folders(root: str | Path) -> Iterator[Path]:
+    """The frame folders of a process output folder (those with a ``meta.json``), in name order."""
+    root = Path(root)
+    if (root / "meta.json").is_file():
+        yield root
+        return
+    yield from sorted(m.parent for m in root.rglob("meta.json"))
+
+
+def _raw_files(root: Path) -> list[Path]:
+    from polcam.io import RAW_EXTENSIONS
+
+    return sorted(f for f in root.iterdir()
+                  if f.is_file() and f.suffix.lower() in RAW_EXTENSIONS and not f.name.startswith("."))
+
+
+def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | None = None,
+             stop: Callable[[], bool] | None = None) -> int:
+    """Log a process output folder or a raw folder to ``sink``; returns the frames logged.
+
+    Parameters
+    ----------
+    sink
+        A :class:`polcam.sinks.rerun.RerunSink`.
+    path
+        A folder (:func:`kind_of` ``"processed"`` or ``"raw"``).
+    on_frame
+        Called with each frame's name once it is logged (progress).
+    stop
+        Polled before each frame; True ends the logging early.
+
+    Raises
+    ------
+    PolcamError
+        A frame that cannot be read or processed (named).
+    """
+    kind = kind_of(path)
+    n = 0
+    if kind == "processed":
+        for i, folder in enumerate(frame_folders(path)):
+            if stop and stop():
+                break
+            sink.log_output(i, folder)
+            n += 1
+            if on_frame:
+                on_frame(folder.name)
+        return n
+    if kind != "raw":
+        raise ValueError(f"{path}: log_path takes a folder, not an {kind} file")
+    import numpy as np
+
+    import polcam
+    from polcam import stokes as st
+    from polcam.errors import LayoutError
+    from polcam.io import read_frame
+
+    for i, f in enumerate(_raw_files(Path(path))):
+        if stop and stop():
+            break
+        frame = read_frame(f)
+        if frame.layout is None:
+            raise LayoutError("no layout: the file has no sidecar saying it (write one, or view it through "
+                              "`polcam process --layout NAME`)", path=f)
+        stack = polcam.demosaic(frame, resolution="cell")
+        s = st.stokes(stack)
+        res = polcam.separate(np.clip(stack, 0.0, 1.0))
+        products = {"s0": s.s0, "dolp": st.dolp(s), "aolp": st.aolp(s),
+                    "diffuse": res.diffuse, "specular": res.specular}
+        ts = frame.metadata.get("timestamp_ns")
+        sink.log_products(i, products, timestamp_ns=None if ts is None else int(ts), frame=frame)
+        n += 1
+        if on_frame:
+            on_frame(f.name)
+    return n
+
+
+class _SignalStop:
+    """While active, SIGINT and SIGTERM set :attr:`event` instead of ending the process."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> _SignalStop:
+        def handler(signum: int, _frame: Any) -> None:
+            self.event.set()
+
+        self._previous = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        return self
+
+    def wait(self) -> None:
+        while not self.event.wait(0.5):
+            pass
+
+    def __exit__(self, *exc: object) -> None:
+        for s, h in self._previous.items():
+            signal.signal(s, h)
+
+
+def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "127.0.0.1",
+         memory_limit: str = "1GiB", out: Callable[[str], None] = print,
+         wait: Callable[[], Any] | None = None) -> int:
+    """Show ``path`` in Rerun; the library form of ``polcam view``.
+
+    Parameters
+    ----------
+    path
+        An ``.rrd``, a process output folder or a raw folder (:func:`kind_of`).
+    web
+        Serve the web viewer instead of opening the native one.
+    port, bind, memory_limit
+        The web viewer's port (data on port + 1), address and buffer
+        (:class:`polcam.sinks.rerun.WebServer`).
+    out
+        Where messages go (the URL to open, warnings).
+    wait
+        ``web``: returns when the server should stop (default: at SIGINT or
+        SIGTERM, which from the start of the call stop the logging and the
+        server cleanly).
+
+    Returns
+    -------
+    int
+        Exit status: 0.
+    """
+    from polcam.sinks.rerun import RerunSink
+    from polcam.sinks.rerun_web import WebServer, rerun_executable
+
+    kind = kind_of(path)
+    if not web:
+        if kind == "rrd":
+            return subprocess.call([rerun_executable(), str(path)])
+        sink = RerunSink("spawn", raw_every=1, view_scale=1.0)
+        try:
+            n = log_path(sink, path)
+        finally:
+            sink.close()
+        out(f"{n} frame(s) of {path} sent to the Rerun viewer")
+        return 0
+    with _SignalStop() as stop:
+        if kind == "rrd":
+            server = WebServer(bind=bind, port=port, recordings=(Path(path),), memory_limit=memory_limit)
+            try:
+                out(server.message())
+                out("Ctrl-C stops the server")
+                (wait or stop.wait)()
+            finally:
+                server.stop()
+            return 0
+        sink = RerunSink("serve", raw_every=1, view_scale=1.0, bind=bind, port=port, memory_limit=memory_limit)
+        try:
+            assert sink.server is not None
+            out(sink.server.message())
+            n = log_path(sink, path, stop=stop.event.is_set)
+            if not stop.event.is_set():
+                out(f"{n} frame(s) of {path} logged; Ctrl-C stops the server")
+                (wait or stop.wait)()
+        finally:
+            sink.close()
+    return 0
+
+
+def add_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add ``view`` to an ``argparse`` sub-parser set; returns the new parser."""
+    v = subparsers.add_parser(
+        "view", help="show an .rrd, a process output folder or a raw folder in the Rerun viewer",
+        description="Show PATH in Rerun with polcam's layout (raw, S0, DoLP, AoLP, diffuse, specular, "
+                    "statistics): an .rrd recording, a `polcam process` output folder (its layers and maps "
+                    "read from disk) or a folder of raw frames (demosaiced and separated on the fly with the "
+                    "default methods). Without --web the native viewer opens (needs a display); with --web "
+                    "Rerun's web viewer is served and its URL printed, until Ctrl-C or SIGTERM.")
+    v.add_argument("path", type=Path, help=".rrd file, process output folder or raw folder")
+    v.add_argument("--web", action="store_true", help="serve the web viewer instead of opening the native one")
+    v.add_argument("--port", type=int, default=9090,
+                   help="--web: port of the web viewer (its data use port + 1; default 9090; 0: any free port)")
+    v.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                   help="--web: address to listen on (default 127.0.0.1, this machine only; 0.0.0.0: "
+                        "anyone on this machine's networks can watch)")
+    v.add_argument("--memory-limit", default="1GiB",
+                   help="--web: data the server keeps for viewers that connect later (default 1GiB)")
+    v.set_defaults(func=run)
+    return v
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run a parsed ``polcam view``."""
+    return view(args.path, web=args.web, port=args.port, bind=args.bind, memory_limit=args.memory_limit,
+                out=lambda text: print(text, flush=True))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    parser = argparse.ArgumentParser(prog="polcam")
+    add_parser(parser.add_subparsers(dest="command", required=True))
+    sys.exit(run(parser.parse_args(["view", *sys.argv[1:]])))
