@@ -15,7 +15,7 @@ from polcam import __version__
 from polcam.cli import build_parser, main
 from polcam.io import read_image
 
-COMMANDS = ["process", "stokes", "capture", "calibrate", "demo", "devices", "formats", "render", "bench"]
+COMMANDS = ["process", "stokes", "capture", "calibrate", "demo", "devices", "formats", "render", "bench", "view"]
 
 
 def test_every_command_has_help(capsys):
