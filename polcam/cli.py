@@ -333,6 +333,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from polcam.bench import speed
 
         return speed.run_args(args)
+    if args.bench == "real":
+        from polcam.bench import real
+
+        return real.run_args(args)
     if args.bench == "calibration":
         from polcam.calibration import bench as cal_bench
 
@@ -502,6 +506,9 @@ def build_parser() -> argparse.ArgumentParser:
                                      "recovered maps, Stokes errors before and after, separation with and "
                                      "without calibration (docs/benchmarks.md).")
     _cal_bench.add_arguments(bc)
+    from polcam.bench import real as _real
+
+    _real.add_parser(bsub)
     b.set_defaults(func=cmd_bench)
     return p
 
