@@ -54,7 +54,7 @@ import numpy as np
 from polcam.errors import FrameReadError, PolcamError
 from polcam.io.atomic import atomic_path, atomic_write
 
-__all__ = ["RealScore", "find_scenes", "load_stack", "prepare", "metrics", "run", "format_table",
+__all__ = ["RealScore", "find_scenes", "load_stack", "prepare", "camera_stack", "metrics", "run", "format_table",
            "write_outputs", "add_parser", "run_args"]
 
 #: Threshold of the Imin checks (one 8-bit step is 1/255).
