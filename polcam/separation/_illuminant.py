@@ -19,7 +19,9 @@ and of the brightest highlights (docs/algorithm.md, polarized-residual).
 2. without one: compares the polarized light's colour with the brightest
    unsaturated, polarized pixels' own colour (:func:`highlight_colour`: at a
    strong highlight the specular term dominates the pixel).  When the two
-   chromaticities agree within ``tolerance`` the polarized colour is used;
+   chromaticities agree within ``tolerance``, or the highlights are further
+   from neutral than the polarized light (then they show their surface's own
+   colour: the camera is assumed white-balanced), the polarized colour is used;
    otherwise the highlights' colour is the illuminant and the ratio of the two
    is the polarizers' implied per-colour efficiency (largest channel 1), which
    the separation divides ``Isv`` by.
@@ -171,7 +173,11 @@ def estimate_illuminant(stack: np.ndarray, *, efficiency: object = None,
         return IlluminantEstimate(pol, eff / eff.max(), "calibration", pol, highlight_colour(stack))
     pol = polarized_colour(stack)
     hi = highlight_colour(stack)
-    if not np.all(np.isfinite(hi)) or np.linalg.norm(_chroma(pol) - _chroma(hi)) <= tolerance:
+    neutral = np.full(3, 1.0 / 3.0)
+    if (not np.all(np.isfinite(hi)) or np.linalg.norm(_chroma(pol) - _chroma(hi)) <= tolerance
+            or np.linalg.norm(_chroma(hi) - neutral) >= np.linalg.norm(_chroma(pol) - neutral)):
+        # agreement, or highlights further from neutral than the polarized light: the
+        # highlights then carry their surface's colour, and the polarized light is trusted
         return IlluminantEstimate(pol, np.ones(3), "polarized", pol, hi)
     ratio = pol / hi
     eff = np.clip(ratio / ratio.max(), 0.05, 1.0)

@@ -198,18 +198,19 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     near = cv2.dilate(spec.astype(np.uint8), np.ones((k_ctx, k_ctx), np.uint8)) > 0
 
     # 4. hue and saturation of the residual around the illuminant point of the chromaticity plane
-    resid_s = cv2.GaussianBlur(resid, (k_small, k_small), 0)
     rsum = resid.sum(axis=-1)
-    rsum_s = resid_s.sum(axis=-1)
-    lit = rsum_s > 3.0 / 255
-    chroma = resid_s / np.maximum(rsum_s, 1e-6)[..., None]
+    lit = rsum > 3.0 / 255
+    chroma = resid / np.maximum(rsum, 1e-6)[..., None]
     v = (chroma - g / g.sum()) @ _plane_basis().T.astype(np.float32)  # (H, W, 2)
     sat = np.hypot(v[..., 0], v[..., 1]).astype(np.float32)
     sat = np.where(lit, sat, 0.0).astype(np.float32)
     hue = np.arctan2(v[..., 1], v[..., 0])
     nb = int(opts["hue_bins"])
     hbin = np.floor((hue + np.pi) / (2 * np.pi) * nb).astype(np.int32) % nb
-    sat_m = sat
+    # median filters: robust to colour noise without mixing the colours of neighbouring materials
+    big = min(h, w) >= 5
+    sat_m = cv2.medianBlur(sat, 5) if big else sat
+    sat = cv2.medianBlur(sat, 3) if big else sat
     kernel = np.ones((k_ctx, k_ctx), np.uint8)
     sat_d = np.zeros_like(sat)
     per_bin = []
@@ -230,12 +231,18 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     share_spec = np.where(coloured, 1.0 - np.clip(sat / np.maximum(sat_d, 1e-6), 0.0, 1.0), 0.0)
     r_col = share_spec * rsum / float(g.sum())              # residual specular, in units of G
 
-    # 5. achromatic pixels: the unpolarized/polarized specular ratio of the coloured highlights
-    cap = float(opts["max_ratio"]) * a_eff
-    ref = coloured & spec & (a_eff > 1.0 / 255)
-    ratio = float(np.median(np.minimum(r_col[ref], cap[ref]) / a_eff[ref])) if ref.sum() >= 20 else 0.0
-    r = np.where(coloured, np.minimum(r_col, cap), ratio * a_eff)
-    r = np.where(near, r, 0.0)
+    # 5. the unpolarized residual is k times the polarized specular light, with k (the Fresnel ratio
+    #    (1 - rho_s) / rho_s) measured on coloured highlights and smoothed over the neighbourhood:
+    #    achromatic pixels take the k of the coloured highlights around them (or of the image)
+    a_pix = np.maximum(a - floor, 0.0)
+    rel = coloured & spec & (a_pix > 1.0 / 255)
+    num_p = np.where(rel, np.minimum(r_col, float(opts["max_ratio"]) * a_pix), 0.0).astype(np.float32)
+    den_p = np.where(rel, a_pix, 0.0).astype(np.float32)
+    ratio = float(num_p.sum() / den_p.sum()) if den_p.sum() > 0 else 0.0
+    num = cv2.boxFilter(num_p, -1, (k_ctx, k_ctx), normalize=False)
+    den = cv2.boxFilter(den_p, -1, (k_ctx, k_ctx), normalize=False)
+    k_loc = np.where(den > 1e-3 * max(float(den.max()), 1e-12), num / np.maximum(den, 1e-12), ratio)
+    r = k_loc * a_pix
     r = np.minimum(r, (resid / g).min(axis=-1))             # diffuse >= 0 in every channel
     diffuse = np.clip(resid - r[..., None] * g, 0.0, ub)
     info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
