@@ -145,14 +145,23 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     isv = np.hypot(q, u)
     imin = np.maximum(ic - isv, 0.0)
 
-    # 1. the common axis of polarization and the signed amplitude of every channel along it
-    qq = (q / g).sum(axis=-1)
-    uu = (u / g).sum(axis=-1)
+    # 1. coherent polarization: Stokes components smoothed over a few pixels (demosaicing and noise
+    #    leave polarization of alternating sign that this cancels; a highlight's is coherent); their
+    #    common axis and the signed amplitude of every channel along it
+    side = max(h, w)
+    k_small = _odd(max(3.0, side / 200))
+    qs = cv2.GaussianBlur(q, (k_small, k_small), 0)
+    us = cv2.GaussianBlur(u, (k_small, k_small), 0)
+    qq = (qs / g).sum(axis=-1)
+    uu = (us / g).sum(axis=-1)
     nn = np.hypot(qq, uu)
     safe = nn > 0
     c2 = np.where(safe, qq / np.where(safe, nn, 1), 1.0)[..., None]
     s2 = np.where(safe, uu / np.where(safe, nn, 1), 0.0)[..., None]
-    amp = q * c2 + u * s2                                   # (H, W, 3) signed
+    amp = qs * c2 + us * s2                                 # (H, W, 3) signed
+    # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
+    # colour demosaicing's polarization errors differ between channels and partly cancel in it
+    a_coh = (nn / 3.0).astype(np.float32)
 
     # 2. polarized specular light: the least multiple a of G that covers every channel's amplitude
     #    (so diffuse <= Imin with one specular colour); where the amplitudes are better explained by
@@ -177,25 +186,22 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         dsafe = np.where(well, det, 1.0)
         al = (ee * ga - ge * ea) / dsafe
         be = (gg * ea - ge * ga) / dsafe
-        take = well & (al * be < 0) & (off > 5.0 * noise + 2.0 / 255)
+        # significant: beyond five times the typical misfit and 3 % of the pixel's intensity
+        take = well & (al * be < 0) & (off > 5.0 * noise + np.maximum(2.0 / 255, 0.03 * np.linalg.norm(ic, axis=-1)))
         a = np.where(take, np.abs(al), a).astype(np.float32)
         b = np.where(take, np.abs(be), 0.0).astype(np.float32)
     a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
     ub = np.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)
     resid = np.clip(ic - a[..., None] * g, 0.0, ub)         # polarized specular light removed
 
-    # 3. where polarized specular light is (the neighbourhood of highlights)
-    side = max(h, w)
-    k_small = _odd(max(3.0, side / 200))
+    # 3. where coherent polarized specular light is (highlights)
     lum = ic.mean(axis=-1)
-    a_s = cv2.GaussianBlur(a, (k_small, k_small), 0)
-    # the floor of the polarized amplitude that noise and demosaicing leave everywhere
-    floor = float(np.median(a_s))
-    a_eff = np.maximum(a_s - floor, 0.0)
+    # the floor of the coherent polarized amplitude that noise leaves everywhere
+    floor = float(np.median(a_coh))
+    a_eff = np.maximum(a_coh - floor, 0.0)
     lum_s = cv2.GaussianBlur(lum, (k_small, k_small), 0)
     spec = a_eff * float(g.mean()) > np.maximum(opts["polarized_threshold"] * lum_s, 1.0 / 255)
     k_ctx = _odd(opts["context"] * side)
-    near = cv2.dilate(spec.astype(np.uint8), np.ones((k_ctx, k_ctx), np.uint8)) > 0
 
     # 4. hue and saturation of the residual around the illuminant point of the chromaticity plane
     rsum = resid.sum(axis=-1)
@@ -234,7 +240,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     # 5. the unpolarized residual is k times the polarized specular light, with k (the Fresnel ratio
     #    (1 - rho_s) / rho_s) measured on coloured highlights and smoothed over the neighbourhood:
     #    achromatic pixels take the k of the coloured highlights around them (or of the image)
-    a_pix = np.maximum(a - floor, 0.0)
+    a_pix = np.minimum(a_eff, a)                            # coherent, and no more than the pixel's own
     rel = coloured & spec & (a_pix > 1.0 / 255)
     num_p = np.where(rel, np.minimum(r_col, float(opts["max_ratio"]) * a_pix), 0.0).astype(np.float32)
     den_p = np.where(rel, a_pix, 0.0).astype(np.float32)
@@ -242,7 +248,12 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     num = cv2.boxFilter(num_p, -1, (k_ctx, k_ctx), normalize=False)
     den = cv2.boxFilter(den_p, -1, (k_ctx, k_ctx), normalize=False)
     k_loc = np.where(den > 1e-3 * max(float(den.max()), 1e-12), num / np.maximum(den, 1e-12), ratio)
-    r = k_loc * a_pix
+    # only where coherent polarized light marks a highlight: a ramp from polarized_threshold to twice
+    # it in the coherent degree of polarization (weakly polarized white surfaces stay diffuse)
+    t = float(opts["polarized_threshold"])
+    dop = a_eff * float(g.mean()) / np.maximum(lum_s, 1e-6)
+    gate = np.clip((dop - t) / t, 0.0, 1.0)
+    r = gate * k_loc * a_pix
     r = np.minimum(r, (resid / g).min(axis=-1))             # diffuse >= 0 in every channel
     diffuse = np.clip(resid - r[..., None] * g, 0.0, ub)
     info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
