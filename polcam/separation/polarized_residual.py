@@ -56,7 +56,7 @@ DEFAULTS: dict[str, Any] = {
     "hue_bins": 24,
     "min_saturation": 0.04,      # below: achromatic (no hue)
     "polarized_threshold": 0.02,  # polarized specular / intensity that marks a highlight neighbourhood
-    "max_ratio": 2.0,            # unpolarized specular residual <= max_ratio x the polarized specular nearby
+    "max_ratio": 4.0,            # unpolarized specular residual <= max_ratio x the polarized specular nearby
 }
 
 
@@ -88,7 +88,7 @@ def _plane_basis() -> np.ndarray:
     return np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.array([[np.sqrt(2.0)], [np.sqrt(6.0)]])
 
 
-@register("polarized-residual", kind="stack", mono=False, reference=REFERENCE, options=tuple(DEFAULTS))
+@register("polarized-residual", kind="stack", mono=True, reference=REFERENCE, options=tuple(DEFAULTS))
 def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.ndarray, dict[str, Any]]:
     """Diffuse layer of a colour polarization stack (module docstring).
 
@@ -116,8 +116,10 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     opts = {**DEFAULTS, **options}
     _check(opts)
     s = np.asarray(stack, dtype=np.float32)
+    if s.ndim == 3 and s.shape[0] == 4:
+        return _mono(s, opts)
     if s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
-        raise MethodError(f"polarized-residual: stack of shape {s.shape}: expected (4, H, W, 3)")
+        raise MethodError(f"polarized-residual: stack of shape {s.shape}: expected (4, H, W, 3) or (4, H, W)")
     h, w = s.shape[1:3]
     ic = s.mean(axis=0)
     q = 0.5 * (s[0] - s[2])
@@ -241,24 +243,83 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     #    (1 - rho_s) / rho_s) measured on coloured highlights and smoothed over the neighbourhood:
     #    achromatic pixels take the k of the coloured highlights around them (or of the image)
     a_pix = np.minimum(a_eff, a)                            # coherent, and no more than the pixel's own
-    rel = coloured & spec & (a_pix > 1.0 / 255)
-    num_p = np.where(rel, np.minimum(r_col, float(opts["max_ratio"]) * a_pix), 0.0).astype(np.float32)
-    den_p = np.where(rel, a_pix, 0.0).astype(np.float32)
-    ratio = float(num_p.sum() / den_p.sum()) if den_p.sum() > 0 else 0.0
-    num = cv2.boxFilter(num_p, -1, (k_ctx, k_ctx), normalize=False)
-    den = cv2.boxFilter(den_p, -1, (k_ctx, k_ctx), normalize=False)
-    k_loc = np.where(den > 1e-3 * max(float(den.max()), 1e-12), num / np.maximum(den, 1e-12), ratio)
     # only where coherent polarized light marks a highlight: a ramp from polarized_threshold to twice
     # it in the coherent degree of polarization (weakly polarized white surfaces stay diffuse)
     t = float(opts["polarized_threshold"])
     dop = a_eff * float(g.mean()) / np.maximum(lum_s, 1e-6)
     gate = np.clip((dop - t) / t, 0.0, 1.0)
+    rel = coloured & spec & (a_pix > 1.0 / 255)
+    num_p = np.where(rel, np.minimum(r_col, float(opts["max_ratio"]) * a_pix), 0.0).astype(np.float32)
+    den_p = np.where(rel, a_pix, 0.0).astype(np.float32)
+    if int(rel.sum()) >= 20:
+        ratio = float(num_p.sum() / den_p.sum())
+        ratio_source = "coloured highlights"
+    else:  # no coloured highlight: the highlights' spatial profile decides (as for mono stacks)
+        ratio = _gradient_ratio((imin / g).mean(axis=-1).astype(np.float32), (a_pix * gate).astype(np.float32),
+                                float(opts["max_ratio"]))
+        ratio_source = "gradients"
+    num = cv2.boxFilter(num_p, -1, (k_ctx, k_ctx), normalize=False)
+    den = cv2.boxFilter(den_p, -1, (k_ctx, k_ctx), normalize=False)
+    k_loc = np.where(den > 1e-3 * max(float(den.max()), 1e-12), num / np.maximum(den, 1e-12), ratio)
     r = gate * k_loc * a_pix
     r = np.minimum(r, (resid / g).min(axis=-1))             # diffuse >= 0 in every channel
     diffuse = np.clip(resid - r[..., None] * g, 0.0, ub)
     info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
-            "efficiency": [float(x) for x in eff], "residual_ratio": ratio,
+            "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor}
     if est is not None:
         info["polarized_colour"] = [float(x) for x in est.polarized]
     return diffuse.astype(np.float32), info
+
+
+def _mono(stack: np.ndarray, opts: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
+    """Mono stacks: remove the polarized light, then k times the coherent polarized light.
+
+    Without colour, k (the unpolarized / polarized ratio of the specular light) is chosen so that the
+    diffuse layer ``Imin - k a`` carries as little of the highlights' spatial profile as possible:
+    least squares of the gradients, ``k = <grad Imin, grad a> / <grad a, grad a>`` over the
+    neighbourhood (docs/algorithm.md), clipped to [0, max_ratio].
+    """
+    s = np.asarray(stack, dtype=np.float32)
+    h, w = s.shape[1:3]
+    ic = s.mean(axis=0)
+    q = 0.5 * (s[0] - s[2])
+    u = 0.5 * (s[1] - s[3])
+    isv = np.hypot(q, u)
+    imin = np.maximum(ic - isv, 0.0)
+    side = max(h, w)
+    k_small = _odd(max(3.0, side / 200))
+    a_coh = np.hypot(cv2.GaussianBlur(q, (k_small, k_small), 0), cv2.GaussianBlur(u, (k_small, k_small), 0))
+    floor = float(np.median(a_coh))
+    a_eff = np.maximum(a_coh - floor, 0.0)
+    lum_s = cv2.GaussianBlur(ic, (k_small, k_small), 0)
+    t = float(opts["polarized_threshold"])
+    dop = a_eff / np.maximum(lum_s, 1e-6)
+    gate = np.clip((dop - t) / t, 0.0, 1.0)
+    a_pix = (np.minimum(a_eff, isv) * gate).astype(np.float32)
+    ratio = _gradient_ratio(imin, a_pix, float(opts["max_ratio"]))
+    diffuse = np.clip(imin - ratio * a_pix, 0.0, imin)
+    return diffuse.astype(np.float32), {"residual_ratio": ratio, "polarized_floor": floor}
+
+
+def _gradient_ratio(imin: np.ndarray, a_pix: np.ndarray, max_ratio: float) -> float:
+    """k that removes the highlights' spatial profile from ``imin - k a_pix`` (both (H, W)).
+
+    k minimises the total variation of ``Imin - k a`` along a's gradients: the weighted median of the
+    gradient ratios ``grad Imin / grad a`` (x and y Sobel components, weights ``|grad a|``), over
+    pixels inside highlights and away from dark regions (a silhouette is an edge of both), clipped
+    to [0, max_ratio]; 0 with fewer than 20 such gradients.
+    """
+    gi = np.concatenate([cv2.Sobel(imin, cv2.CV_32F, 1, 0, ksize=3).ravel(),
+                         cv2.Sobel(imin, cv2.CV_32F, 0, 1, ksize=3).ravel()])
+    ga = np.concatenate([cv2.Sobel(a_pix, cv2.CV_32F, 1, 0, ksize=3).ravel(),
+                         cv2.Sobel(a_pix, cv2.CV_32F, 0, 1, ksize=3).ravel()])
+    inner = cv2.erode(((a_pix > 0) & (imin > 2.0 / 255)).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    use = (np.abs(ga) > 1e-4) & np.concatenate([inner.ravel(), inner.ravel()])
+    if use.sum() < 20:
+        return 0.0
+    rr = gi[use] / ga[use]
+    ww = np.abs(ga[use])
+    order = np.argsort(rr)
+    cw = np.cumsum(ww[order])
+    return float(np.clip(rr[order][np.searchsorted(cw, 0.5 * cw[-1])], 0.0, max_ratio))

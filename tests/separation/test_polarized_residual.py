@@ -149,6 +149,40 @@ def test_bad_options(opt):
         polcam.separate(st, method="polarized-residual", **opt)
 
 
-def test_mono_refused():
-    with pytest.raises(MethodError, match="colour"):
-        polcam.separate(np.zeros((4, 8, 8)), method="polarized-residual")
+def test_mono_stack_gives_a_mono_layer():
+    res = polcam.separate(np.full((4, 8, 8), 0.2), method="polarized-residual")
+    assert res.diffuse.shape == (8, 8)
+    np.testing.assert_allclose(res.diffuse, 0.2, atol=1e-6)
+
+
+def _mono_scene(rho):
+    h, w = 64, 64
+    yy, xx = np.mgrid[:h, :w]
+    d = 0.2 + 0.3 * xx / w                         # smooth diffuse shading
+    spec = 0.3 * _bump(h, w, 30, 34, 4)
+    st = synthesize(spec, rho * spec, np.full((h, w), 0.6)) + d
+    return st, d
+
+
+@pytest.mark.parametrize("rho", [0.4, 0.5, 1.0])
+def test_mono_residual_follows_the_polarized_highlight(rho):
+    st, d = _mono_scene(rho)
+    res = polcam.separate(st, method="polarized-residual")
+    imin = polcam.separate(st, method="imin").diffuse
+    assert res.diffuse.shape == d.shape
+    # the unpolarized share (1 - rho) of the highlight is found: k = (1 - rho) / rho
+    assert res.info["residual_ratio"] == pytest.approx((1 - rho) / rho, rel=0.05, abs=0.02)
+    err = np.abs(res.diffuse - d).max()
+    if rho < 1:   # at least 90 % of the unpolarized specular light that imin leaves is removed
+        assert err < 0.1 * np.abs(imin - d).max()
+    else:         # a fully polarized highlight: nothing beyond the polarized light is removed
+        assert err < 1e-3
+
+
+def test_mono_unpolarized_white_kept():
+    h, w = 32, 32
+    d = np.full((h, w), 0.3)
+    d[8:24, 8:24] = 0.9                            # a bright unpolarized object
+    st = np.repeat(d[None], 4, axis=0)
+    res = polcam.separate(st, method="polarized-residual")
+    np.testing.assert_allclose(res.diffuse, d, atol=1e-6)
