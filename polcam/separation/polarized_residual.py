@@ -56,7 +56,8 @@ DEFAULTS: dict[str, Any] = {
     "hue_bins": 24,
     "min_saturation": 0.04,      # below: achromatic (no hue)
     "polarized_threshold": 0.02,  # polarized specular / intensity that marks a highlight neighbourhood
-    "max_ratio": 4.0,            # unpolarized specular residual <= max_ratio x the polarized specular nearby
+    "max_ratio": 4.0,
+    "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"            # unpolarized specular residual <= max_ratio x the polarized specular nearby
 }
 
 
@@ -68,6 +69,8 @@ def _check(opts: dict[str, Any]) -> None:
     mr = opts["max_ratio"]
     if isinstance(mr, bool) or not isinstance(mr, (int, float, np.floating)) or not 0 <= float(mr) < 1e3:
         raise MethodError(f"polarized-residual: max_ratio={mr!r}: expected a number in [0, 1000)")
+    if opts["residual_model"] not in ("shen13", "hue"):
+        raise MethodError(f"polarized-residual: residual_model={opts['residual_model']!r}: expected 'shen13' or 'hue'")
     hb = opts["hue_bins"]
     if isinstance(hb, bool) or not isinstance(hb, (int, np.integer)) or not 4 <= hb <= 360:
         raise MethodError(f"polarized-residual: hue_bins={hb!r}: expected an integer in [4, 360]")
@@ -264,6 +267,27 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     r = gate * k_loc * a_pix
     r = np.minimum(r, (resid / g).min(axis=-1))             # diffuse >= 0 in every channel
     diffuse = np.clip(resid - r[..., None] * g, 0.0, ub)
+    if opts["residual_model"] == "shen13":
+        # coloured pixels: Shen & Zheng's (2013) specular-free clustering applied to the residual only,
+        # in the illuminant-normalised space (where the residual specular light is white), never
+        # above the residual; achromatic pixels keep the polarization-decided layer above (a ramp
+        # over the locally averaged residual's saturation from min_saturation to twice it)
+        from polcam.separation.shen13 import separate_shen13
+
+        norm = resid / g
+        peak = float(norm.max())
+        if peak > 0:
+            out = separate_shen13(np.clip(norm / peak, 0.0, 1.0).astype(np.float64))
+            sf = np.asarray(out[0] if isinstance(out, tuple) else out, np.float32) * peak * g
+            sf = np.clip(sf, 0.0, resid)
+            ms = float(opts["min_saturation"])
+            # the saturation of the locally averaged residual: colour noise (demosaicing) averages out
+            kw = _odd(3 * k_small)
+            rb = cv2.blur(resid, (kw, kw))
+            cb = rb / np.maximum(rb.sum(axis=-1, keepdims=True), 1e-6) - g / g.sum()
+            sat_w = np.linalg.norm(cb, axis=-1)
+            wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)[..., None]
+            diffuse = wgt * np.minimum(sf, diffuse) + (1.0 - wgt) * diffuse
     info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor}
