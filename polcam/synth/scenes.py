@@ -176,7 +176,7 @@ def _build_stress() -> dict[str, SceneSpec]:
     return s
 
 
-#: Scenes beyond the paper, each breaking one method assumption (docs/synthetic.md).
+#: Scenes beyond the paper, each breaking one method assumption (docs/benchmarks.md lists them).
 STRESS: dict[str, SceneSpec] = _build_stress()
 
 #: The Bunny series, weak to strong specular reflection.
