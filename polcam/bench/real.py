@@ -232,6 +232,8 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     ------
     PolcamError
         No real stack in ``data``, or an unknown scene name.
+    MethodError
+        An unknown method name.
     """
     from polcam.separation import separate
 
@@ -244,7 +246,11 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
         if unknown:
             raise PolcamError(f"scene(s) {', '.join(unknown)} not in {data}; found {', '.join(found)}")
         found = {k: v for k, v in found.items() if k in scenes}
+    from polcam.separation import method_spec
+
     meths = list(methods or _colour_methods())
+    for m in meths:
+        method_spec(m)  # an unknown name is refused before any work
     options = options or {}
     scores: list[RealScore] = []
     layers: dict[str, dict[str, np.ndarray]] = {}
@@ -352,7 +358,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         "real", help="every colour separation method on real colour stacks",
         description="Every colour separation method on real full-resolution colour polarization stacks "
                     "(mosaicked in the IMX250MYR layout, demosaiced, separated), judged by physics: "
-                    "diffuse above Imin, specular colour spread, brightest 1 %% removed, achromatic "
+                    "diffuse above Imin, specular colour spread, brightest 1 % removed, achromatic "
                     "unpolarized pixels kept, seconds; a Markdown table and a montage per scene.")
     p.add_argument("--data", type=Path, help="folder with real-color-stack/ and real-color-stacks/ "
                                              "(default ../shared/data when present)")

@@ -101,3 +101,10 @@ def test_write_outputs_without_layers(tmp_path):
 
     paths = write_outputs([RealScore("a", "imin", 0, 0, 0, 0, 1, 0.1)], {}, tmp_path)
     assert [p.name for p in paths] == ["scores.csv", "table.md"]
+
+
+@pytest.mark.skipif(not HAVE_DATA, reason="../shared/data real colour stacks not present")
+def test_unknown_method_refused_before_work(tmp_path, capsys):
+    assert main(["bench", "real", "--data", str(DATA), "--methods", "nope", "--out", str(tmp_path / "o")]) == 2
+    assert "nope" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
