@@ -134,8 +134,6 @@ def test_diffuse_bounds_and_one_specular_colour():
     rng = np.random.default_rng(1)
     st = np.clip(rng.uniform(0, 1, (4, 24, 24, 3)), 0, 1)
     res = polcam.separate(st, method="polarized-residual")
-    from polcam.stokes import imin
-
     assert np.all(res.diffuse >= 0)
     assert np.all(res.diffuse <= st.mean(0) + 1e-6)
     assert res.info["illuminant_source"] in ("polarized", "highlights")
