@@ -313,9 +313,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.bench == "quality":
         from polcam.bench import quality
 
-        scores, stats = quality.run(scenes=args.scenes, methods=args.methods, size=args.size,
-                                    seed=args.seed)
-        print(quality.format_table(scores))
+        scenes = args.scenes or quality.scene_set(args.set)
+        scores, stats = quality.run(scenes=scenes, methods=args.methods, size=args.size,
+                                    seed=args.seed, mono=args.mono)
+        print(quality.format_object_psnr(scores))
         for f in quality.write_outputs(scores, stats, args.out or Path("bench-output") / "quality"):
             print(f"wrote {f}")
         return 0
@@ -333,6 +334,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from polcam.bench import speed
 
         return speed.run_args(args)
+    if args.bench == "real":
+        from polcam.bench import real
+
+        return real.run_args(args)
     if args.bench == "calibration":
         from polcam.calibration import bench as cal_bench
 
@@ -486,7 +491,11 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Every separation method on the synthetic scenes (PSNR, SSIM, whole image "
                                      "and object mask; CSV, Markdown, plot), beside the paper's tables.")
     bq.add_argument("--methods", nargs="+", help="only these methods")
-    bq.add_argument("--scenes", nargs="+", help="only these scenes (default: all)")
+    bq.add_argument("--scenes", nargs="+", help="only these scenes (default: those of --set)")
+    bq.add_argument("--set", choices=("paper", "stress", "all"), default="paper",
+                    help="scene set: the paper's, polcam's stress scenes, or both (default paper)")
+    bq.add_argument("--mono", action="store_true",
+                    help="score the scenes' luminance with the methods that take mono stacks")
     bq.add_argument("--size", type=int, default=128, help="scene side in pixels (default 128)")
     bq.add_argument("--seed", type=int, default=0, help="random seed of the scenes (default 0)")
     bq.add_argument("--out", type=Path, help="output folder (default bench-output/quality)")
@@ -505,6 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
                                      "recovered maps, Stokes errors before and after, separation with and "
                                      "without calibration (docs/benchmarks.md).")
     _cal_bench.add_arguments(bc)
+    from polcam.bench import real as _real
+
+    _real.add_parser(bsub)
     b.set_defaults(func=cmd_bench)
     return p
 

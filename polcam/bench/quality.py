@@ -115,14 +115,29 @@ def ssim(x: np.ndarray, ref: np.ndarray, mask: np.ndarray | None = None) -> floa
 
 
 def score(diffuse: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> tuple[float, float, float, float]:
-    """(PSNR, SSIM, PSNR over mask, SSIM over mask) of a diffuse layer."""
+    """(PSNR, SSIM, PSNR over mask, SSIM over mask) of a diffuse layer ((H, W, 3), or (H, W) mono)."""
     d = np.clip(diffuse, 0, 1)
+    if d.ndim == 2:
+        d, truth = d[..., None], np.asarray(truth)[..., None]
     return psnr(d, truth), ssim(d, truth), psnr(d, truth, mask), ssim(d, truth, mask)
+
+
+#: Scene sets: the paper's, polcam's stress scenes (each breaking one method assumption), both.
+SCENE_SETS = ("paper", "stress", "all")
+
+
+def scene_set(name: str) -> list[str]:
+    """Scene names of a set in :data:`SCENE_SETS`."""
+    from polcam.synth.scenes import SCENES, STRESS
+
+    if name not in SCENE_SETS:
+        raise ValueError(f"scene set {name!r}: expected one of {', '.join(SCENE_SETS)}")
+    return {"paper": list(SCENES), "stress": list(STRESS), "all": [*SCENES, *STRESS]}[name]
 
 
 def run(*, scenes: Sequence[str] | None = None, methods: Sequence[str] | None = None,
         size: int = 128, seed: int = 0, options: dict[str, dict[str, Any]] | None = None,
-        progress: bool = True) -> tuple[list[Score], dict[str, dict[str, float]]]:
+        progress: bool = True, mono: bool = False) -> tuple[list[Score], dict[str, dict[str, float]]]:
     """Render the scenes and score every method.
 
     Parameters
@@ -130,7 +145,11 @@ def run(*, scenes: Sequence[str] | None = None, methods: Sequence[str] | None = 
     scenes
         Scene names (default: all of :data:`polcam.synth.scenes.SCENES`).
     methods
-        Method names (default: every registered colour method).
+        Method names (default: every registered colour method; with ``mono``,
+        every method that takes mono stacks).
+    mono
+        Score on the scenes' luminance (the mean of R, G and B of every
+        polarizer image and of the true diffuse): what a mono sensor (IMX250MZR) sees.
     size
         Image side in pixels.
     seed
@@ -144,21 +163,26 @@ def run(*, scenes: Sequence[str] | None = None, methods: Sequence[str] | None = 
     scene_stats : dict
         Per scene: specular-to-diffuse energy ratio and saturated fraction.
     """
-    from polcam.separation import METHODS, separate
+    from polcam.separation import METHODS, method_spec, separate
     from polcam.synth.render import render
     from polcam.synth.scenes import SCENES, scene
 
     names = list(scenes or SCENES)
-    meths = list(methods or [m for m in METHODS])
+    meths = list(methods or [m for m in METHODS if not mono or method_spec(m).mono])
     options = options or {}
     scores: list[Score] = []
     stats: dict[str, dict[str, float]] = {}
     for name in names:
         r = render(scene(name), size=size, seed=seed)
+        if mono:
+            r.stack = r.stack.mean(axis=-1)
+            r.diffuse = r.diffuse.mean(axis=-1)
+            r.specular = r.specular.mean(axis=-1)
         mean = r.stack.mean(axis=0)
         stats[name] = {
             "specular_ratio": float(r.specular.sum() / max(r.diffuse.sum(), 1e-12)),
-            "saturated": float(np.mean(np.any(r.stack >= 1.0, axis=(0, 3))[r.mask])) if r.mask.any() else 0.0,
+            "saturated": float(np.mean(np.any(r.stack >= 1.0, axis=(0, 3) if r.stack.ndim == 4 else 0)[r.mask]))
+            if r.mask.any() else 0.0,
             "input_psnr": psnr(mean, r.diffuse),
         }
         for m in meths:
@@ -204,6 +228,21 @@ def format_table(scores: Sequence[Score], *, masked: bool = False) -> str:
     return "\n".join(lines)
 
 
+def format_object_psnr(scores: Sequence[Score]) -> str:
+    """Markdown: object-mask PSNR, a row per scene and a column per method, the best in bold, and the mean."""
+    scenes = list(dict.fromkeys(s.scene for s in scores))
+    methods = list(dict.fromkeys(s.method for s in scores))
+    by = {(s.scene, s.method): s.psnr_mask for s in scores if not s.error}
+    lines = ["| scene | " + " | ".join(methods) + " |", "|---" + "|---:" * len(methods) + "|"]
+    rows = [(sc, [by.get((sc, m), float("nan")) for m in methods]) for sc in scenes]
+    means = [float(np.mean([v for _, vals in rows for v in [vals[i]]])) for i in range(len(methods))]
+    for label, vals in [*rows, ("mean", means)]:
+        best = np.nanmax(vals) if np.any(np.isfinite(vals)) else np.nan
+        cells = [("-" if not np.isfinite(v) else (f"**{v:.2f}**" if v == best else f"{v:.2f}")) for v in vals]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def format_paper(scenes: Sequence[str]) -> str:
     """The paper's published figures in the same layout."""
     fake = [Score(sc, m, v[1], v[0], v[1], v[0], float("nan"))
@@ -229,7 +268,8 @@ def write_outputs(scores: Sequence[Score], stats: dict[str, dict[str, float]], o
         fh.write(buf.getvalue())
     written.append(out_dir / "scores.csv")
     scenes = list(dict.fromkeys(s.scene for s in scores))
-    md = ["## Whole image", "", format_table(scores), "", "## Object mask", "",
+    md = ["## Object PSNR (dB), scenes by methods", "", format_object_psnr(scores), "",
+          "## Whole image", "", format_table(scores), "", "## Object mask", "",
           format_table(scores, masked=True), "", "## The paper (Tables 1 and 2)", "",
           format_paper(scenes), "", "## Scenes", "",
           "| scene | specular / diffuse energy | saturated share of object | input PSNR |",

@@ -95,7 +95,7 @@ def register(name: str, *, kind: str, mono: bool = False, reference: str = "",
 
 #: The method ``separate`` runs when none is named, per input form (see :func:`input_form`):
 #: the best polcam has for that form (docs/benchmarks.md backs each choice).
-_DEFAULTS = {"stack": "tensor", "mono-stack": "imin", "image": "yang10"}
+_DEFAULTS = {"stack": "tensor", "mono-stack": "polarized-residual", "image": "yang10"}
 
 
 def default_method(form: str) -> str:

@@ -30,7 +30,7 @@ from __future__ import annotations
 from polcam.errors import PolcamError
 from polcam.synth.render import SceneSpec, Texture
 
-__all__ = ["BUNNY", "SCENES", "SENSOR", "scene", "scene_names", "statistics_table"]
+__all__ = ["BUNNY", "SCENES", "STRESS", "SENSOR", "scene", "scene_names", "statistics_table"]
 
 #: Sensor settings shared by the paper's scenes.
 SENSOR: dict = {"full_well": 20000.0, "read_noise": 4.0, "bit_depth": 12}
@@ -121,6 +121,64 @@ def _build() -> dict[str, SceneSpec]:
 #: The paper's scenes by name: Bunny1..Bunny7, Dragon1, Dragon2, Armadillo.
 SCENES: dict[str, SceneSpec] = _build()
 
+def _build_stress() -> dict[str, SceneSpec]:
+    """Scenes that break one method assumption each (polcam's own set, beyond the paper)."""
+    s: dict[str, SceneSpec] = {}
+    s["WhiteGrey"] = _spec(
+        "WhiteGrey", _BUNNY_VIEW, "white and grey checker albedo on a grey backdrop: the dichromatic "
+        "model's blind spot (a white surface has the illuminant's colour)",
+        albedo=Texture(kind="checker", colors=((0.85, 0.85, 0.85), (0.45, 0.45, 0.45), (0.70, 0.70, 0.70)),
+                       scale=0.2, seed=5),
+        light_position=(1.5, 2.0, 3.0), light_intensity=0.8, ks=0.5, shininess=30.0,
+        background="plane", background_albedo=(0.5, 0.5, 0.5),
+    )
+    s["Multicolour"] = _spec(
+        "Multicolour", _BUNNY_VIEW, "multi-coloured checker texture (six hues and white): no single "
+        "diffuse colour per neighbourhood",
+        albedo=Texture(kind="checker", colors=((0.8, 0.2, 0.2), (0.2, 0.7, 0.25), (0.2, 0.3, 0.85),
+                                               (0.85, 0.75, 0.2), (0.7, 0.25, 0.75), (0.2, 0.7, 0.75),
+                                               (0.8, 0.8, 0.8)), scale=0.1, seed=11),
+        light_position=(1.0, 2.0, 3.5), light_intensity=0.8, ks=0.6, shininess=25.0,
+    )
+    s["Brewster"] = _spec(
+        "Brewster", _BUNNY_VIEW, "light from behind the object's side: specular seen near Brewster's "
+        "angle, strongly polarized",
+        albedo=(0.6, 0.45, 0.3), light_position=(3.0, 0.8, -1.0), light_intensity=0.9, ambient=0.15,
+        ks=0.8, shininess=20.0,
+    )
+    s["Normal"] = _spec(
+        "Normal", _BUNNY_VIEW, "light beside the camera: specular near normal incidence, weakly polarized",
+        albedo=(0.3, 0.5, 0.6), light_position=(0.3, 0.4, 3.5), light_intensity=0.8,
+        ks=0.6, shininess=30.0,
+    )
+    s["Tinted"] = _spec(
+        "Tinted", _BUNNY_VIEW, "a warm tinted illuminant (1.0, 0.75, 0.5) on a uniform albedo",
+        albedo=(0.5, 0.6, 0.7), light_position=(1.5, 2.5, 3.0), light_color=(1.0, 0.75, 0.5),
+        light_intensity=0.9, ks=0.6, shininess=25.0,
+    )
+    s["DiffusePol"] = _spec(
+        "DiffusePol", _BUNNY_VIEW, "partially polarized diffuse light (AoLP perpendicular to the "
+        "specular's), refractive index 1.8, side light",
+        albedo=(0.7, 0.35, 0.25), light_position=(2.5, 1.5, 2.0), light_intensity=0.9,
+        ks=0.4, shininess=30.0, refractive_index=1.8, diffuse_polarization=True,
+    )
+    s["Saturated"] = _spec(
+        "Saturated", _BUNNY_VIEW, "bright light, strong wide highlights clipped at the sensor's white level",
+        albedo=(0.55, 0.35, 0.6), light_position=(1.0, 2.0, 3.0), light_intensity=1.3,
+        ks=1.5, shininess=12.0,
+    )
+    s["Noise8"] = SceneSpec(
+        name="Noise8", description="8-bit quantisation and a noisy sensor (2000 electrons full well, "
+        "8 electrons read noise)", **_BUNNY_VIEW,
+        albedo=_MULTI, light_position=(1.5, 2.5, 3.0), light_intensity=0.8, ks=0.5, shininess=25.0,
+        full_well=2000.0, read_noise=8.0, bit_depth=8,
+    )
+    return s
+
+
+#: Scenes beyond the paper, each breaking one method assumption (docs/benchmarks.md lists them).
+STRESS: dict[str, SceneSpec] = _build_stress()
+
 #: The Bunny series, weak to strong specular reflection.
 BUNNY: tuple[str, ...] = tuple(f"Bunny{i}" for i in range(1, 8))
 
@@ -131,17 +189,18 @@ def scene_names() -> tuple[str, ...]:
 
 
 def scene(name: str) -> SceneSpec:
-    """The scene called ``name`` (case-insensitive).
+    """The scene called ``name`` (case-insensitive), from :data:`SCENES` or :data:`STRESS`.
 
     Raises
     ------
     PolcamError
         An unknown name; the message lists the known ones.
     """
-    for key, spec in SCENES.items():
+    for key, spec in {**SCENES, **STRESS}.items():
         if key.lower() == str(name).lower():
             return spec
-    raise PolcamError(f"synthetic scene {name!r} is not known; expected one of {', '.join(SCENES)}")
+    raise PolcamError(f"synthetic scene {name!r} is not known; expected one of "
+                      f"{', '.join([*SCENES, *STRESS])}")
 
 
 def statistics_table(*, size: int = 256, seed: int = 0) -> str:

@@ -70,3 +70,24 @@ def test_cli_render(tmp_path, capsys):
     assert (tmp_path / "Bunny2" / "raw_imx250myr.png").is_file()
     assert main(["render", str(tmp_path), "--scenes", "Teapot", "--size", "32"]) == 2
     assert "Teapot" in capsys.readouterr().err
+
+
+def test_scene_sets_and_a_mono_run(tmp_path):
+    from polcam.bench.quality import format_object_psnr, scene_set
+    from polcam.synth.scenes import SCENES, STRESS
+
+    assert scene_set("paper") == list(SCENES)
+    assert scene_set("all") == [*SCENES, *STRESS]
+    with pytest.raises(ValueError, match="scene set"):
+        scene_set("nope")
+    scores, stats = run(scenes=["Brewster"], size=32, mono=True, progress=False)
+    methods = [s.method for s in scores]
+    assert "imin" in methods and "wen21" not in methods   # only methods that take mono stacks
+    by = {s.method: s for s in scores}
+    # near Brewster's angle the specular light is almost fully polarized: imin is close to the truth
+    assert by["imin"].psnr_mask > 30
+    table = format_object_psnr(scores)
+    assert table.splitlines()[0].startswith("| scene | imin")
+    assert "| Brewster |" in table and "| mean |" in table and "**" in table
+    write_outputs(scores, stats, tmp_path)
+    assert "Object PSNR" in (tmp_path / "table.md").read_text()

@@ -82,3 +82,27 @@ def test_scenes_fill_the_frame_without_cropping(rendered: dict) -> None:
         m = r.mask
         assert m.mean() > 0.1, name
         assert not (m[0].any() or m[-1].any() or m[:, 0].any() or m[:, -1].any()), name
+
+
+def test_stress_scenes_break_the_assumptions_they_name() -> None:
+    import numpy as np
+
+    from polcam.synth.render import render
+    from polcam.synth.scenes import STRESS, scene
+
+    assert set(STRESS) == {"WhiteGrey", "Multicolour", "Brewster", "Normal", "Tinted", "DiffusePol",
+                           "Saturated", "Noise8"}
+    assert scene("brewster") is STRESS["Brewster"]
+    r = {n: render(STRESS[n], size=48, seed=0) for n in ("Brewster", "Normal", "DiffusePol", "WhiteGrey")}
+
+    def spec_dolp(x):
+        w = np.maximum(x.specular.sum(-1), 0)[x.mask]
+        return float((x.dolp_spec[x.mask] * w).sum() / w.sum())
+
+    assert spec_dolp(r["Brewster"]) > 0.8          # near Brewster's angle: strongly polarized
+    assert spec_dolp(r["Normal"]) < 0.05           # near normal incidence: weakly polarized
+    assert STRESS["DiffusePol"].diffuse_polarization
+    assert STRESS["Tinted"].light_color != (1.0, 1.0, 1.0)
+    assert STRESS["Noise8"].bit_depth == 8
+    d = r["WhiteGrey"].diffuse[r["WhiteGrey"].mask]
+    assert np.abs(d - d.mean(-1, keepdims=True)).max() < 1e-6   # achromatic albedo under white light

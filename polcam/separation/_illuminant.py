@@ -1,0 +1,184 @@
+"""The illuminant's colour from a colour polarization stack, and the polarizers' per-colour efficiency.
+
+Specular reflection from a dielectric has the illuminant's colour (neutral
+interface reflection) and is (partly) polarized; diffuse reflection is nearly
+unpolarized.  So the colour of the polarized light, the per-channel amplitude
+``Isv`` of the polarization sinusoid summed over the most polarized pixels, is
+the classic estimate of the illuminant (:func:`polarized_colour`).  It is
+right only when every colour channel's polarizer is equally efficient: a
+polarizer of efficiency ``eta_c`` (the diattenuation, 1 for an ideal one)
+measures ``eta_c Isv_c``.  Real wire-grid polarizers (on-chip ones too) have a
+wavelength-dependent efficiency, and on the real stacks polcam is tested on the
+polarized light's colour differs from the neutral colour of the white surfaces
+and of the brightest highlights (docs/algorithm.md, polarized-residual).
+
+:func:`estimate_illuminant` therefore:
+
+1. with a calibration's per-colour efficiency: divides ``Isv`` by it and takes
+   the polarized light's colour;
+2. without one: compares the polarized light's colour with the brightest
+   unsaturated, polarized pixels' own colour (:func:`highlight_colour`: at a
+   strong highlight the specular term dominates the pixel).  When the two
+   chromaticities agree within ``tolerance``, or the highlights are further
+   from neutral than the polarized light (then they show their surface's own
+   colour: the camera is assumed white-balanced), the polarized colour is used;
+   otherwise the highlights' colour is the illuminant and the ratio of the two
+   is the polarizers' implied per-colour efficiency (largest channel 1), which
+   the separation divides ``Isv`` by.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from polcam.errors import MethodError
+
+__all__ = ["IlluminantEstimate", "polarized_colour", "highlight_colour", "estimate_illuminant"]
+
+#: Chromaticity distance under which the polarized light's colour is trusted.
+TOLERANCE = 0.04
+_SATURATED = 0.98
+
+
+class IlluminantEstimate(NamedTuple):
+    """Result of :func:`estimate_illuminant`.
+
+    Attributes
+    ----------
+    colour
+        (3,) float64, mean 1: the illuminant's RGB colour.
+    efficiency
+        (3,) float64 in (0, 1], largest 1: per-colour polarizer efficiency
+        (given, implied, or ones).
+    source
+        ``"calibration"``, ``"polarized"`` or ``"highlights"``: what the colour came from.
+    polarized, highlights
+        (3,) float64 mean 1: the two measured colours (``highlights`` NaN when
+        there were no usable highlight pixels).
+    """
+
+    colour: np.ndarray
+    efficiency: np.ndarray
+    source: str
+    polarized: np.ndarray
+    highlights: np.ndarray
+
+
+def _unit_mean(v: np.ndarray) -> np.ndarray:
+    v = np.maximum(np.asarray(v, dtype=np.float64), 0.0)
+    m = v.mean()
+    return v / m if m > 0 else np.ones(3)
+
+
+def _chroma(v: np.ndarray) -> np.ndarray:
+    return v / v.sum()
+
+
+def _parts(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    s = np.asarray(stack, dtype=np.float32)
+    if s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
+        raise MethodError(f"illuminant: stack of shape {s.shape}: expected (4, H, W, 3)")
+    ic = s.mean(axis=0)
+    isv = 0.5 * np.hypot(s[0] - s[2], s[1] - s[3])
+    unsat = s.max(axis=(0, 3)) < _SATURATED
+    return s, ic, isv, unsat
+
+
+def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None,
+                     share: float = 0.05) -> np.ndarray:
+    """Colour of the polarized light: ``Isv / efficiency`` summed over the most polarized pixels.
+
+    Parameters
+    ----------
+    stack
+        (4, H, W, 3) float in [0, 1].
+    efficiency
+        (3,) per-colour polarizer efficiency in (0, 1], or None (ideal).
+    share
+        The pixels whose polarized amplitude (summed over RGB) is in the top
+        ``share`` among unsaturated pixels are used.
+
+    Returns
+    -------
+    numpy.ndarray
+        (3,) float64 with mean 1 (ones when nothing is polarized).
+    """
+    _, _, isv, unsat = _parts(stack)
+    if efficiency is not None:
+        isv = isv / _check_efficiency(efficiency)
+    tot = isv.sum(axis=-1)
+    cand = tot[unsat] if unsat.any() else tot.reshape(-1)
+    vals = isv[unsat] if unsat.any() else isv.reshape(-1, 3)
+    if cand.size == 0 or not cand.max() > 0:
+        return np.ones(3)
+    sel = cand >= np.quantile(cand, 1.0 - share)
+    return _unit_mean(vals[sel].sum(axis=0, dtype=np.float64))
+
+
+def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:
+    """Own colour of the brightest unsaturated polarized pixels (the highlights).
+
+    Among pixels with no saturated sample whose degree of polarization is above
+    the median, the brightest ``share`` (by mean intensity) are averaged.
+
+    Returns
+    -------
+    numpy.ndarray
+        (3,) float64 with mean 1, or NaNs when no pixel qualifies.
+    """
+    _, ic, isv, unsat = _parts(stack)
+    lum = ic.mean(axis=-1)
+    dolp = isv.mean(axis=-1) / np.maximum(lum, 1e-6)
+    ok = unsat & (lum > 0)
+    if not ok.any():
+        return np.full(3, np.nan)
+    ok &= dolp >= np.median(dolp[ok])
+    if not ok.any():
+        return np.full(3, np.nan)
+    vals = lum[ok]
+    sel = vals >= np.quantile(vals, 1.0 - share)
+    return _unit_mean(ic[ok][sel].sum(axis=0, dtype=np.float64))
+
+
+def _check_efficiency(efficiency: object) -> np.ndarray:
+    e = np.asarray(efficiency, dtype=np.float64).reshape(-1)
+    if e.size != 3 or not np.all(np.isfinite(e)) or np.any(e <= 0) or np.any(e > 1):
+        raise MethodError(f"polarizer efficiency {efficiency!r}: expected three numbers in (0, 1] (R, G, B)")
+    return e
+
+
+def estimate_illuminant(stack: np.ndarray, *, efficiency: object = None,
+                        tolerance: float = TOLERANCE) -> IlluminantEstimate:
+    """The illuminant's colour and the polarizers' per-colour efficiency (module docstring).
+
+    Parameters
+    ----------
+    stack
+        (4, H, W, 3) float in [0, 1], angles 0, 45, 90, 135.
+    efficiency
+        (3,) per-colour polarizer efficiency in (0, 1] from a calibration, or None.
+    tolerance
+        Largest chromaticity distance between the polarized light's colour and
+        the highlights' colour under which the former is used.
+
+    Returns
+    -------
+    IlluminantEstimate
+    """
+    if efficiency is not None:
+        eff = _check_efficiency(efficiency)
+        pol = polarized_colour(stack, efficiency=eff)
+        return IlluminantEstimate(pol, eff / eff.max(), "calibration", pol, highlight_colour(stack))
+    pol = polarized_colour(stack)
+    hi = highlight_colour(stack)
+    neutral = np.full(3, 1.0 / 3.0)
+    if (not np.all(np.isfinite(hi)) or np.linalg.norm(_chroma(pol) - _chroma(hi)) <= tolerance
+            or np.linalg.norm(_chroma(hi) - neutral) >= np.linalg.norm(_chroma(pol) - neutral)):
+        # agreement, or highlights further from neutral than the polarized light: the
+        # highlights then carry their surface's colour, and the polarized light is trusted
+        return IlluminantEstimate(pol, np.ones(3), "polarized", pol, hi)
+    ratio = pol / hi
+    eff = np.clip(ratio / ratio.max(), 0.05, 1.0)
+    return IlluminantEstimate(hi, eff, "highlights", pol, hi)

@@ -1,0 +1,349 @@
+"""``polarized-residual``: polcam's own separation: remove the polarized light, then model only the residual.
+
+The physics (docs/algorithm.md, polarized-residual, gives the equations and the
+benchmarks behind every choice):
+
+* Specular reflection has the illuminant's colour ``G`` and is partly
+  polarized (Fresnel: degree ``rho_s``, strongly near Brewster's angle, weakly
+  near normal incidence).  Its polarized part is measured by the polarization
+  sinusoid and removed exactly.
+* Diffuse reflection is unpolarized or weakly polarized with its AoLP
+  perpendicular to the specular's (Atkinson & Hancock 2006; Kajiyama et al.
+  WACV 2023).  Per pixel the signed amplitudes of the three channels along a
+  common axis are ``A = a G - b e`` with ``e`` the diffuse colour: the part
+  along ``G`` is specular, the perpendicular diffuse part ``b e`` is kept.
+* The unpolarized part ``(1 - rho_s) s G`` of the specular light is what needs
+  a prior.  A dichromatic prior is applied to that residual only: in the
+  chromaticity plane every pixel of one material lies on the line from its
+  diffuse chromaticity to the illuminant's, so its hue around the illuminant
+  point identifies the material and its saturation, against the most saturated
+  pixel of that hue nearby, gives the specular share.  Achromatic surfaces
+  (no hue) are decided by polarization and spatial context: only where
+  polarized specular light is present nearby is any residual removed, and there
+  in the proportion of unpolarized to polarized specular light measured on the
+  coloured highlights of the same image.  A white wall with no polarized
+  specular light stays diffuse.
+* Constraints: ``0 <= diffuse <= Imin`` (plus the diffuse light's own
+  polarized amplitude where it is found), and a single specular colour ``G``
+  for the residual.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+
+from polcam.errors import MethodError
+from polcam.separation._illuminant import estimate_illuminant
+from polcam.separation._registry import register
+
+__all__ = ["REFERENCE", "separate_polarized_residual", "DEFAULTS"]
+
+REFERENCE = (
+    "polcam's own method; builds on L. B. Wolff & T. E. Boult, IEEE TPAMI 13(7) 1991 (polarization "
+    "minimum); S. A. Shafer, Color Res. Appl. 10(4) 1985 (dichromatic model); S. Wen, Y. Zheng & F. Lu, "
+    "IEEE TIP 30 2021; G. A. Atkinson & E. R. Hancock, IEEE TIP 15(6) 2006; Kajiyama et al., WACV 2023"
+)
+
+#: Default options (docs/algorithm.md gives the benchmark behind each).
+DEFAULTS: dict[str, Any] = {
+    "illuminant": None,          # None: estimate; or an RGB triple
+    "efficiency": None,          # per-colour polarizer efficiency from a calibration, (3,) in (0, 1]
+    "diffuse_polarization": True,
+    "context": 0.08,             # neighbourhood side, as a share of the image's larger side
+    "hue_bins": 24,
+    "min_saturation": 0.04,      # below: achromatic (no hue)
+    "polarized_threshold": 0.02,  # polarized specular / intensity that marks a highlight neighbourhood
+    "max_ratio": 4.0,
+    "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"            # unpolarized specular residual <= max_ratio x the polarized specular nearby
+}
+
+
+def _check(opts: dict[str, Any]) -> None:
+    for k in ("context", "min_saturation", "polarized_threshold"):
+        v = opts[k]
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not (0 < float(v) < 1):
+            raise MethodError(f"polarized-residual: {k}={v!r}: expected a number in (0, 1)")
+    mr = opts["max_ratio"]
+    if isinstance(mr, bool) or not isinstance(mr, (int, float, np.floating)) or not 0 <= float(mr) < 1e3:
+        raise MethodError(f"polarized-residual: max_ratio={mr!r}: expected a number in [0, 1000)")
+    if opts["residual_model"] not in ("shen13", "hue"):
+        raise MethodError(f"polarized-residual: residual_model={opts['residual_model']!r}: expected 'shen13' or 'hue'")
+    hb = opts["hue_bins"]
+    if isinstance(hb, bool) or not isinstance(hb, (int, np.integer)) or not 4 <= hb <= 360:
+        raise MethodError(f"polarized-residual: hue_bins={hb!r}: expected an integer in [4, 360]")
+    g = opts["illuminant"]
+    if g is not None:
+        arr = np.asarray(g, dtype=np.float64).reshape(-1)
+        if arr.size != 3 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+            raise MethodError(f"polarized-residual: illuminant={g!r}: expected three positive numbers (R, G, B)")
+
+
+def _odd(n: float) -> int:
+    k = max(int(round(n)), 1)
+    return k if k % 2 else k + 1
+
+
+def _plane_basis() -> np.ndarray:
+    """Two orthonormal vectors spanning the chromaticity plane (sum of components 0)."""
+    return np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.array([[np.sqrt(2.0)], [np.sqrt(6.0)]])
+
+
+@register("polarized-residual", kind="stack", mono=True, reference=REFERENCE, options=tuple(DEFAULTS))
+def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.ndarray, dict[str, Any]]:
+    """Diffuse layer of a colour polarization stack (module docstring).
+
+    Parameters
+    ----------
+    stack
+        (4, H, W, 3) float in [0, 1], angles 0, 45, 90, 135.
+    **options
+        See :data:`DEFAULTS`: ``illuminant`` (RGB or None), ``efficiency``
+        ((3,) per-colour polarizer efficiency in (0, 1] or None),
+        ``diffuse_polarization`` (keep a perpendicular polarized diffuse part),
+        ``context``, ``hue_bins``, ``min_saturation``, ``polarized_threshold``.
+
+    Returns
+    -------
+    diffuse : numpy.ndarray
+        (H, W, 3) float32 in [0, mean over angles].
+    info : dict
+        ``illuminant`` (RGB, mean 1), ``illuminant_source``, ``efficiency``,
+        ``residual_ratio`` (unpolarized / polarized specular light on coloured highlights).
+    """
+    unknown = set(options) - set(DEFAULTS)
+    if unknown:
+        raise MethodError(f"polarized-residual: unknown option(s) {', '.join(sorted(unknown))}")
+    opts = {**DEFAULTS, **options}
+    _check(opts)
+    s = np.asarray(stack, dtype=np.float32)
+    if s.ndim == 3 and s.shape[0] == 4:
+        return _mono(s, opts)
+    if s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
+        raise MethodError(f"polarized-residual: stack of shape {s.shape}: expected (4, H, W, 3) or (4, H, W)")
+    h, w = s.shape[1:3]
+    ic = s.mean(axis=0)
+    q = 0.5 * (s[0] - s[2])
+    u = 0.5 * (s[1] - s[3])
+
+    # illuminant and per-colour polarizer efficiency
+    if opts["illuminant"] is not None:
+        g = np.asarray(opts["illuminant"], dtype=np.float64)
+        est = None
+        eff = np.ones(3) if opts["efficiency"] is None else np.asarray(opts["efficiency"], np.float64)
+        if opts["efficiency"] is not None:
+            from polcam.separation._illuminant import _check_efficiency
+
+            eff = _check_efficiency(eff)
+        source = "given"
+    else:
+        est = estimate_illuminant(s, efficiency=opts["efficiency"])
+        g = est.colour
+        eff = est.efficiency if est.source == "calibration" else np.ones(3)
+        source = est.source
+    g = (g / g.mean()).astype(np.float32)
+    if not np.all(eff == 1):
+        q = q / eff.astype(np.float32)
+        u = u / eff.astype(np.float32)
+    isv = np.hypot(q, u)
+    imin = np.maximum(ic - isv, 0.0)
+
+    # 1. coherent polarization: Stokes components smoothed over a few pixels (demosaicing and noise
+    #    leave polarization of alternating sign that this cancels; a highlight's is coherent); their
+    #    common axis and the signed amplitude of every channel along it
+    side = max(h, w)
+    k_small = _odd(max(3.0, side / 200))
+    qs = cv2.GaussianBlur(q, (k_small, k_small), 0)
+    us = cv2.GaussianBlur(u, (k_small, k_small), 0)
+    qq = (qs / g).sum(axis=-1)
+    uu = (us / g).sum(axis=-1)
+    nn = np.hypot(qq, uu)
+    safe = nn > 0
+    c2 = np.where(safe, qq / np.where(safe, nn, 1), 1.0)[..., None]
+    s2 = np.where(safe, uu / np.where(safe, nn, 1), 0.0)[..., None]
+    amp = qs * c2 + us * s2                                 # (H, W, 3) signed
+    # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
+    # colour demosaicing's polarization errors differ between channels and partly cancel in it
+    a_coh = (nn / 3.0).astype(np.float32)
+
+    # 2. polarized specular light: the least multiple a of G that covers every channel's amplitude
+    #    (so diffuse <= Imin with one specular colour); where the amplitudes are better explained by
+    #    A = alpha G + beta e with alpha, beta of opposite signs (a diffuse part of colour e polarized
+    #    perpendicular to the specular), the specular part is |alpha| G and the diffuse keeps |beta| e.
+    gg = float(g @ g)
+    along = (amp @ g) / gg
+    cover = (isv / g).max(axis=-1)
+    esum = imin.sum(axis=-1, keepdims=True)
+    e = np.where(esum > 1e-6, imin / np.maximum(esum, 1e-6), g / g.sum())
+    a = cover.astype(np.float32)
+    b = np.zeros_like(a)
+    if opts["diffuse_polarization"]:
+        off = np.linalg.norm(amp - along[..., None] * g, axis=-1)   # what G alone leaves unexplained
+        noise = float(np.median(off))
+        ge = e @ g
+        ee = (e * e).sum(axis=-1)
+        det = gg * ee - ge * ge
+        well = det > (0.2 ** 2) * gg * ee                  # e far from G's colour (sin > 0.2)
+        ga = along * gg
+        ea = (amp * e).sum(axis=-1)
+        dsafe = np.where(well, det, 1.0)
+        al = (ee * ga - ge * ea) / dsafe
+        be = (gg * ea - ge * ga) / dsafe
+        # significant: beyond five times the typical misfit and 3 % of the pixel's intensity
+        take = well & (al * be < 0) & (off > 5.0 * noise + np.maximum(2.0 / 255, 0.03 * np.linalg.norm(ic, axis=-1)))
+        a = np.where(take, np.abs(al), a).astype(np.float32)
+        b = np.where(take, np.abs(be), 0.0).astype(np.float32)
+    a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
+    ub = np.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)
+    resid = np.clip(ic - a[..., None] * g, 0.0, ub)         # polarized specular light removed
+
+    # 3. where coherent polarized specular light is (highlights)
+    lum = ic.mean(axis=-1)
+    # the floor of the coherent polarized amplitude that noise leaves everywhere
+    floor = float(np.median(a_coh))
+    a_eff = np.maximum(a_coh - floor, 0.0)
+    lum_s = cv2.GaussianBlur(lum, (k_small, k_small), 0)
+    spec = a_eff * float(g.mean()) > np.maximum(opts["polarized_threshold"] * lum_s, 1.0 / 255)
+    k_ctx = _odd(opts["context"] * side)
+
+    # 4. hue and saturation of the residual around the illuminant point of the chromaticity plane
+    rsum = resid.sum(axis=-1)
+    lit = rsum > 3.0 / 255
+    chroma = resid / np.maximum(rsum, 1e-6)[..., None]
+    v = (chroma - g / g.sum()) @ _plane_basis().T.astype(np.float32)  # (H, W, 2)
+    sat = np.hypot(v[..., 0], v[..., 1]).astype(np.float32)
+    sat = np.where(lit, sat, 0.0).astype(np.float32)
+    hue = np.arctan2(v[..., 1], v[..., 0])
+    nb = int(opts["hue_bins"])
+    hbin = np.floor((hue + np.pi) / (2 * np.pi) * nb).astype(np.int32) % nb
+    # median filters: robust to colour noise without mixing the colours of neighbouring materials
+    big = min(h, w) >= 5
+    sat_m = cv2.medianBlur(sat, 5) if big else sat
+    sat = cv2.medianBlur(sat, 3) if big else sat
+    kernel = np.ones((k_ctx, k_ctx), np.uint8)
+    sat_d = np.zeros_like(sat)
+    per_bin = []
+    for k in range(nb):
+        m = hbin == k
+        per_bin.append(cv2.dilate(np.where(m, sat_m, 0.0).astype(np.float32), kernel) if m.any() else None)
+    for k in range(nb):
+        m = hbin == k
+        if not m.any():
+            continue
+        best = np.zeros(int(m.sum()), np.float32)
+        for j in (k - 1, k, k + 1):   # neighbouring hues too: noise moves a pixel's hue a little
+            pb = per_bin[j % nb]
+            if pb is not None:
+                best = np.maximum(best, pb[m])
+        sat_d[m] = best
+    coloured = (sat_d > opts["min_saturation"]) & (sat > 0.5 * opts["min_saturation"]) & lit
+    share_spec = np.where(coloured, 1.0 - np.clip(sat / np.maximum(sat_d, 1e-6), 0.0, 1.0), 0.0)
+    r_col = share_spec * rsum / float(g.sum())              # residual specular, in units of G
+
+    # 5. the unpolarized residual is k times the polarized specular light, with k (the Fresnel ratio
+    #    (1 - rho_s) / rho_s) measured on coloured highlights and smoothed over the neighbourhood:
+    #    achromatic pixels take the k of the coloured highlights around them (or of the image)
+    a_pix = np.minimum(a_eff, a)                            # coherent, and no more than the pixel's own
+    # only where coherent polarized light marks a highlight: a ramp from polarized_threshold to twice
+    # it in the coherent degree of polarization (weakly polarized white surfaces stay diffuse)
+    t = float(opts["polarized_threshold"])
+    dop = a_eff * float(g.mean()) / np.maximum(lum_s, 1e-6)
+    gate = np.clip((dop - t) / t, 0.0, 1.0)
+    rel = coloured & spec & (a_pix > 1.0 / 255)
+    num_p = np.where(rel, np.minimum(r_col, float(opts["max_ratio"]) * a_pix), 0.0).astype(np.float32)
+    den_p = np.where(rel, a_pix, 0.0).astype(np.float32)
+    if int(rel.sum()) >= 20:
+        ratio = float(num_p.sum() / den_p.sum())
+        ratio_source = "coloured highlights"
+    else:  # no coloured highlight: the highlights' spatial profile decides (as for mono stacks)
+        ratio = _gradient_ratio((imin / g).mean(axis=-1).astype(np.float32), (a_pix * gate).astype(np.float32),
+                                float(opts["max_ratio"]))
+        ratio_source = "gradients"
+    num = cv2.boxFilter(num_p, -1, (k_ctx, k_ctx), normalize=False)
+    den = cv2.boxFilter(den_p, -1, (k_ctx, k_ctx), normalize=False)
+    k_loc = np.where(den > 1e-3 * max(float(den.max()), 1e-12), num / np.maximum(den, 1e-12), ratio)
+    r = gate * k_loc * a_pix
+    r = np.minimum(r, (resid / g).min(axis=-1))             # diffuse >= 0 in every channel
+    diffuse = np.clip(resid - r[..., None] * g, 0.0, ub)
+    if opts["residual_model"] == "shen13":
+        # coloured pixels: Shen & Zheng's (2013) specular-free clustering applied to the residual only,
+        # in the illuminant-normalised space (where the residual specular light is white), never
+        # above the residual; achromatic pixels keep the polarization-decided layer above (a ramp
+        # over the locally averaged residual's saturation from min_saturation to twice it)
+        from polcam.separation.shen13 import separate_shen13
+
+        norm = resid / g
+        peak = float(norm.max())
+        if peak > 0:
+            out = separate_shen13(np.clip(norm / peak, 0.0, 1.0).astype(np.float64))
+            sf = np.asarray(out[0] if isinstance(out, tuple) else out, np.float32) * peak * g
+            sf = np.clip(sf, 0.0, resid)
+            ms = float(opts["min_saturation"])
+            # the saturation of the locally averaged residual: colour noise (demosaicing) averages out
+            kw = _odd(3 * k_small)
+            rb = cv2.blur(resid, (kw, kw))
+            cb = rb / np.maximum(rb.sum(axis=-1, keepdims=True), 1e-6) - g / g.sum()
+            sat_w = np.linalg.norm(cb, axis=-1)
+            wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)[..., None]
+            diffuse = wgt * np.minimum(sf, diffuse) + (1.0 - wgt) * diffuse
+    info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
+            "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
+            "polarized_floor": floor}
+    if est is not None:
+        info["polarized_colour"] = [float(x) for x in est.polarized]
+    return diffuse.astype(np.float32), info
+
+
+def _mono(stack: np.ndarray, opts: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
+    """Mono stacks: remove the polarized light, then k times the coherent polarized light.
+
+    Without colour, k (the unpolarized / polarized ratio of the specular light) is chosen so that the
+    diffuse layer ``Imin - k a`` carries as little of the highlights' spatial profile as possible:
+    least squares of the gradients, ``k = <grad Imin, grad a> / <grad a, grad a>`` over the
+    neighbourhood (docs/algorithm.md), clipped to [0, max_ratio].
+    """
+    s = np.asarray(stack, dtype=np.float32)
+    h, w = s.shape[1:3]
+    ic = s.mean(axis=0)
+    q = 0.5 * (s[0] - s[2])
+    u = 0.5 * (s[1] - s[3])
+    isv = np.hypot(q, u)
+    imin = np.maximum(ic - isv, 0.0)
+    side = max(h, w)
+    k_small = _odd(max(3.0, side / 200))
+    a_coh = np.hypot(cv2.GaussianBlur(q, (k_small, k_small), 0), cv2.GaussianBlur(u, (k_small, k_small), 0))
+    floor = float(np.median(a_coh))
+    a_eff = np.maximum(a_coh - floor, 0.0)
+    lum_s = cv2.GaussianBlur(ic, (k_small, k_small), 0)
+    t = float(opts["polarized_threshold"])
+    dop = a_eff / np.maximum(lum_s, 1e-6)
+    gate = np.clip((dop - t) / t, 0.0, 1.0)
+    a_pix = (np.minimum(a_eff, isv) * gate).astype(np.float32)
+    ratio = _gradient_ratio(imin, a_pix, float(opts["max_ratio"]))
+    diffuse = np.clip(imin - ratio * a_pix, 0.0, imin)
+    return diffuse.astype(np.float32), {"residual_ratio": ratio, "polarized_floor": floor}
+
+
+def _gradient_ratio(imin: np.ndarray, a_pix: np.ndarray, max_ratio: float) -> float:
+    """k that removes the highlights' spatial profile from ``imin - k a_pix`` (both (H, W)).
+
+    k minimises the total variation of ``Imin - k a`` along a's gradients: the weighted median of the
+    gradient ratios ``grad Imin / grad a`` (x and y Sobel components, weights ``|grad a|``), over
+    pixels inside highlights and away from dark regions (a silhouette is an edge of both), clipped
+    to [0, max_ratio]; 0 with fewer than 20 such gradients.
+    """
+    gi = np.concatenate([cv2.Sobel(imin, cv2.CV_32F, 1, 0, ksize=3).ravel(),
+                         cv2.Sobel(imin, cv2.CV_32F, 0, 1, ksize=3).ravel()])
+    ga = np.concatenate([cv2.Sobel(a_pix, cv2.CV_32F, 1, 0, ksize=3).ravel(),
+                         cv2.Sobel(a_pix, cv2.CV_32F, 0, 1, ksize=3).ravel()])
+    inner = cv2.erode(((a_pix > 0) & (imin > 2.0 / 255)).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    use = (np.abs(ga) > 1e-4) & np.concatenate([inner.ravel(), inner.ravel()])
+    if use.sum() < 20:
+        return 0.0
+    rr = gi[use] / ga[use]
+    ww = np.abs(ga[use])
+    order = np.argsort(rr)
+    cw = np.cumsum(ww[order])
+    return float(np.clip(rr[order][np.searchsorted(cw, 0.5 * cw[-1])], 0.0, max_ratio))

@@ -1,0 +1,69 @@
+"""The illuminant estimator: planted colours, efficiencies and the highlights check."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from polcam.errors import MethodError
+from polcam.separation._illuminant import estimate_illuminant, highlight_colour, polarized_colour
+from polcam.stokes import synthesize
+
+
+def _stack(gamma, *, diffuse=(0.3, 0.3, 0.3), rho=0.8, eff=(1.0, 1.0, 1.0)):
+    h, w = 40, 40
+    yy, xx = np.mgrid[:h, :w]
+    s = 0.3 * np.exp(-((yy - 20) ** 2 + (xx - 20) ** 2) / 18.0)
+    spec = s[..., None] * np.asarray(gamma)
+    d = np.broadcast_to(np.asarray(diffuse, float), (h, w, 3))
+    st = synthesize(spec, rho * spec, np.full((h, w, 3), 0.5)) + d
+    mean = st.mean(axis=0)
+    return mean + (st - mean) * np.asarray(eff)
+
+
+def test_polarized_colour_is_the_planted_light():
+    g = np.array([1.3, 1.0, 0.7])
+    np.testing.assert_allclose(polarized_colour(_stack(g)), g / g.mean(), atol=1e-6)
+    # nothing polarized: white
+    np.testing.assert_allclose(polarized_colour(np.full((4, 8, 8, 3), 0.4)), 1.0)
+
+
+def test_efficiency_divides_the_polarized_amplitude():
+    eff = np.array([0.5, 0.8, 1.0])
+    st = _stack((1, 1, 1), eff=eff)
+    np.testing.assert_allclose(polarized_colour(st), eff / eff.mean(), atol=1e-6)
+    np.testing.assert_allclose(polarized_colour(st, efficiency=eff), 1.0, atol=1e-6)
+
+
+def test_highlight_colour_of_a_white_highlight_on_grey():
+    hc = highlight_colour(_stack((1, 1, 1)))
+    np.testing.assert_allclose(hc, 1.0, atol=1e-6)
+    assert np.all(np.isnan(highlight_colour(np.ones((4, 8, 8, 3)))))   # everything saturated
+
+
+def test_estimate_sources():
+    g = np.array([1.2, 1.0, 0.8])
+    e = estimate_illuminant(_stack(g, diffuse=(0.2, 0.2, 0.2), rho=1.0))
+    assert e.source == "polarized"
+    np.testing.assert_allclose(e.colour, g / g.mean(), atol=1e-6)
+    np.testing.assert_allclose(e.efficiency, 1.0)
+    # white light seen through polarizers weaker in red and green: the highlights win
+    eff = np.array([0.5, 0.7, 1.0])
+    e2 = estimate_illuminant(_stack((1, 1, 1), eff=eff))
+    assert e2.source == "highlights"
+    np.testing.assert_allclose(e2.colour, 1.0, atol=1e-6)
+    np.testing.assert_allclose(e2.efficiency, eff, atol=1e-6)
+    e3 = estimate_illuminant(_stack((1, 1, 1), eff=eff), efficiency=eff)
+    assert e3.source == "calibration"
+    np.testing.assert_allclose(e3.colour, 1.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [(1, 1), (0.5, 1.2, 1), (0, 1, 1), (np.nan, 1, 1)])
+def test_bad_efficiency(bad):
+    with pytest.raises(MethodError, match="efficiency"):
+        estimate_illuminant(_stack((1, 1, 1)), efficiency=bad)
+
+
+def test_bad_stack():
+    with pytest.raises(MethodError, match=r"\(4, H, W, 3\)"):
+        estimate_illuminant(np.zeros((4, 8, 8)))

@@ -1,0 +1,186 @@
+"""polarized-residual: each physical claim on a stack with planted truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import polcam
+from polcam.errors import MethodError
+from polcam.stokes import synthesize
+
+
+def _scene(h=48, w=64):
+    """Red, green and blue matte patches plus a white one, on a grey background."""
+    d = np.full((h, w, 3), 0.25)
+    d[8:24, 4:20] = (0.55, 0.12, 0.10)
+    d[8:24, 24:40] = (0.10, 0.45, 0.12)
+    d[8:24, 44:60] = (0.12, 0.15, 0.55)
+    d[28:44, 20:44] = (0.6, 0.6, 0.6)     # a white matte object
+    return 0.7 * d
+
+
+def _bump(h, w, cy, cx, r):
+    yy, xx = np.mgrid[:h, :w]
+    return np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * r * r))
+
+
+def _stack(diffuse, spec, gamma, *, rho_s, phi_s, rho_d=0.0):
+    """Diffuse (optionally polarized at phi_s + 90 deg) plus a specular of colour gamma and DoLP rho_s."""
+    s = spec[..., None] * np.asarray(gamma)
+    phi = np.full(diffuse.shape, phi_s)
+    st = synthesize(s, rho_s * s, phi)
+    st = st + synthesize(diffuse, rho_d * diffuse, phi + np.pi / 2)
+    return st
+
+
+def test_planted_polarized_specular_is_removed_exactly():
+    d = _scene()
+    h, w = d.shape[:2]
+    spec = 0.3 * (_bump(h, w, 16, 12, 3) + _bump(h, w, 16, 52, 3) + _bump(h, w, 36, 32, 4))
+    st = _stack(d, spec, (1, 1, 1), rho_s=1.0, phi_s=0.4)
+    res = polcam.separate(st, method="polarized-residual")
+    assert np.max(np.abs(res.diffuse - d)) < 2e-3
+    # the imin diffuse is exact here too; a fully polarized specular needs no prior
+    assert np.max(np.abs(polcam.separate(st, method="imin").diffuse - d)) < 1e-6
+
+
+def test_white_unpolarized_object_is_kept():
+    d = _scene()
+    st = _stack(d, np.zeros(d.shape[:2]), (1, 1, 1), rho_s=0.0, phi_s=0.0)
+    res = polcam.separate(st, method="polarized-residual")
+    white = np.zeros(d.shape[:2], bool)
+    white[28:44, 20:44] = True
+    assert np.max(np.abs(res.diffuse[white] - 0.42)) < 1e-3
+    assert np.max(np.abs(res.diffuse - d)) < 1e-3
+
+
+def test_white_object_beside_a_partly_polarized_highlight_stays_white():
+    d = _scene()
+    h, w = d.shape[:2]
+    spec = 0.35 * _bump(h, w, 16, 12, 3)            # highlight on the red patch, DoLP 0.5
+    st = _stack(d, spec, (1, 1, 1), rho_s=0.5, phi_s=1.0)
+    res = polcam.separate(st, method="polarized-residual")
+    white = np.zeros((h, w), bool)
+    white[28:44, 20:44] = True
+    assert np.max(np.abs(res.diffuse[white] - 0.42)) < 1e-3
+    # the unpolarized half of the highlight is removed too, beyond what imin removes
+    red = np.zeros((h, w), bool)
+    red[8:24, 4:20] = True
+    err_ours = np.abs(res.diffuse - d)[red].mean()
+    err_imin = np.abs(polcam.separate(st, method="imin").diffuse - d)[red].mean()
+    assert err_ours < 0.5 * err_imin
+
+
+def test_tinted_illuminant_is_recovered():
+    from polcam.separation._illuminant import estimate_illuminant
+
+    d = _scene()
+    h, w = d.shape[:2]
+    gamma = np.array([1.2, 1.0, 0.7])
+    gamma = gamma / gamma.mean()
+    spec = 0.15 * (_bump(h, w, 16, 12, 3) + _bump(h, w, 16, 32, 3) + _bump(h, w, 16, 52, 3))
+    st = _stack(d * gamma, spec, gamma, rho_s=0.8, phi_s=0.3)
+    est = estimate_illuminant(st)
+    assert est.source == "polarized"
+    np.testing.assert_allclose(est.colour, gamma, atol=1e-3)
+    res = polcam.separate(st, method="polarized-residual")
+    np.testing.assert_allclose(res.info["illuminant"], gamma, atol=1e-3)
+    assert np.max(np.abs(res.diffuse - d * gamma)) < 0.02
+
+
+def test_polarizer_efficiency_calibration_and_implied_efficiency():
+    from polcam.separation._illuminant import estimate_illuminant
+
+    d = _scene()
+    h, w = d.shape[:2]
+    spec = 0.25 * (_bump(h, w, 36, 32, 3) + _bump(h, w, 16, 32, 3))
+    eff = np.array([0.6, 0.9, 1.0])
+    st = _stack(d, spec, (1, 1, 1), rho_s=1.0, phi_s=0.2)
+    # a sensor whose polarizers pass the polarized part per colour at eff
+    mean = st.mean(axis=0)
+    st_b = mean + (st - mean) * eff
+    bad = estimate_illuminant(st_b)
+    assert bad.source == "highlights"               # the polarized colour disagrees with the highlights
+    assert np.linalg.norm(bad.colour / bad.colour.sum() - 1 / 3) < 0.03
+    good = estimate_illuminant(st_b, efficiency=eff)
+    assert good.source == "calibration"
+    np.testing.assert_allclose(good.colour, 1.0, atol=1e-3)
+    res = polcam.separate(st_b, method="polarized-residual", efficiency=tuple(eff))
+    assert np.max(np.abs(res.diffuse - d)) < 2e-3
+    with pytest.raises(MethodError, match="efficiency"):
+        estimate_illuminant(st_b, efficiency=(0.5, 0.0, 1.0))
+
+
+def test_partially_polarized_diffuse_is_kept():
+    d = _scene()
+    h, w = d.shape[:2]
+    spec = 0.3 * (_bump(h, w, 16, 12, 3) + _bump(h, w, 16, 52, 3))
+    st = _stack(d, spec, (1, 1, 1), rho_s=1.0, phi_s=0.7, rho_d=0.15)
+    res = polcam.separate(st, method="polarized-residual")
+    imin = polcam.separate(st, method="imin")
+    patch = np.zeros((h, w), bool)
+    patch[8:24, 4:20] = True                        # the red patch, under a highlight
+    patch[8:24, 44:60] = True                       # the blue one
+    err = np.abs(res.diffuse - d)[patch].mean()
+    assert err < 0.01
+    assert err < 0.5 * np.abs(imin.diffuse - d)[patch].mean()
+    # with the option off, the perpendicular polarized diffuse light is treated as specular
+    off = polcam.separate(st, method="polarized-residual", diffuse_polarization=False)
+    assert np.abs(off.diffuse - d)[patch].mean() > err
+
+
+def test_diffuse_bounds_and_one_specular_colour():
+    rng = np.random.default_rng(1)
+    st = np.clip(rng.uniform(0, 1, (4, 24, 24, 3)), 0, 1)
+    res = polcam.separate(st, method="polarized-residual")
+    assert np.all(res.diffuse >= 0)
+    assert np.all(res.diffuse <= st.mean(0) + 1e-6)
+    assert res.info["illuminant_source"] in ("polarized", "highlights")
+
+
+@pytest.mark.parametrize("opt", [{"context": 0}, {"hue_bins": 2}, {"max_ratio": -1},
+                                 {"illuminant": (1, 0, 1)}, {"polarized_threshold": 2}])
+def test_bad_options(opt):
+    st = np.zeros((4, 8, 8, 3))
+    with pytest.raises(MethodError):
+        polcam.separate(st, method="polarized-residual", **opt)
+
+
+def test_mono_stack_gives_a_mono_layer():
+    res = polcam.separate(np.full((4, 8, 8), 0.2), method="polarized-residual")
+    assert res.diffuse.shape == (8, 8)
+    np.testing.assert_allclose(res.diffuse, 0.2, atol=1e-6)
+
+
+def _mono_scene(rho):
+    h, w = 64, 64
+    yy, xx = np.mgrid[:h, :w]
+    d = 0.2 + 0.3 * xx / w                         # smooth diffuse shading
+    spec = 0.3 * _bump(h, w, 30, 34, 4)
+    st = synthesize(spec, rho * spec, np.full((h, w), 0.6)) + d
+    return st, d
+
+
+@pytest.mark.parametrize("rho", [0.4, 0.5, 1.0])
+def test_mono_residual_follows_the_polarized_highlight(rho):
+    st, d = _mono_scene(rho)
+    res = polcam.separate(st, method="polarized-residual")
+    imin = polcam.separate(st, method="imin").diffuse
+    assert res.diffuse.shape == d.shape
+    # the unpolarized share (1 - rho) of the highlight is found: k = (1 - rho) / rho
+    assert res.info["residual_ratio"] == pytest.approx((1 - rho) / rho, rel=0.05, abs=0.02)
+    err = np.abs(res.diffuse - d).max()
+    if rho < 1:   # at least 90 % of the unpolarized specular light that imin leaves is removed
+        assert err < 0.1 * np.abs(imin - d).max()
+    else:         # a fully polarized highlight: nothing beyond the polarized light is removed
+        assert err < 1e-3
+
+
+def test_mono_unpolarized_white_kept():
+    h, w = 32, 32
+    d = np.full((h, w), 0.3)
+    d[8:24, 8:24] = 0.9                            # a bright unpolarized object
+    st = np.repeat(d[None], 4, axis=0)
+    res = polcam.separate(st, method="polarized-residual")
+    np.testing.assert_allclose(res.diffuse, d, atol=1e-6)
