@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from polcam.separation import default_method
+
 from polcam.cli import main
 from polcam.errors import FrameWriteError
 from polcam.io import read_frame, read_image, write_frame
@@ -69,8 +71,8 @@ def test_outputs_meta_and_summary(raw_dir, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["done"] == 3 and summary["failed"] == []
     meta = json.loads((out / MONO / "meta.json").read_text())
-    assert meta["method"] == "imin" and meta["layout"] == "imx250mzr"        # mono default
-    assert json.loads((out / "colour0" / "meta.json").read_text())["method"] == "tensor"  # colour default
+    assert meta["method"] == default_method("mono-stack") and meta["layout"] == "imx250mzr"
+    assert json.loads((out / "colour0" / "meta.json").read_text())["method"] == default_method("stack")
     import hashlib
 
     assert meta["input_sha256"] == hashlib.sha256((raw_dir / f"{MONO}.png").read_bytes()).hexdigest()
@@ -351,7 +353,7 @@ def test_real_imx250mzr_frames_end_to_end(shared_data, tmp_path):
                  "--quiet", "--workers", "1"]) == 0
     for name in ("fruits", "carps"):
         meta = json.loads((out / name / "meta.json").read_text())
-        assert meta["method"] == "imin" and meta["shape"] == [4, 1024, 1224]
+        assert meta["method"] == default_method("mono-stack") and meta["shape"] == [4, 1024, 1224]
         d, _ = read_image(out / name / "diffuse.exr")
         s, _ = read_image(out / name / "specular.exr")
         assert d.shape[:2] == (1024, 1224) and d.min() >= 0 and s.min() >= -1e-6

@@ -3,7 +3,7 @@
 Real stacks (every pixel measured at every polarizer angle and colour) have no
 ground-truth diffuse layer, so the layers are judged by physics and by eye.
 For every scene the true stack is sampled in the IMX250MYR layout
-(:func:`polcam.demosaic.mosaic_stack`), demosaiced with polcam's default
+(:func:`polcam.demosaicing.mosaic_stack`), demosaiced with polcam's default
 demosaicing method and clipped to [0, 1] (what a camera gives polcam), and
 every method separates that stack.  Per scene and method it reports:
 
@@ -138,7 +138,7 @@ def prepare(stack: np.ndarray, *, crop: Sequence[int] | None = None, scale: floa
 
 def camera_stack(true_stack: np.ndarray, *, layout: str = "imx250myr") -> np.ndarray:
     """What a colour polarization camera gives: ``true_stack`` mosaicked, demosaiced (default method), clipped."""
-    from polcam.demosaic import demosaic, mosaic_stack
+    from polcam.demosaicing import demosaic, mosaic_stack
 
     raw = mosaic_stack(true_stack.astype(np.float32), layout=layout)
     return np.clip(demosaic(raw, layout=layout), 0.0, 1.0).astype(np.float64)
