@@ -12,7 +12,8 @@ Steps (docs/algorithm.md, section 4, states each as implemented):
 4. tau, and per tile the tensor problem D = L + S by the IALM
    (:func:`.ialm.solve_tiles`), the tiles blended (:func:`.tiling.blend`);
 5. the diffuse: representation 1 of L, mean over the angles, back to the
-   input's illuminant and scale.
+   input's illuminant and scale, clipped to [0, Imin] of the input (polcam's:
+   unpolarized light never exceeds the minimum of the polarization sinusoid).
 
 Only where the work runs differs between backends: numpy runs the initial
 diffuse and the tiles in worker processes (:mod:`polcam.parallel`) and one
@@ -42,6 +43,7 @@ from polcam.separation.tensor.operators import (
 from polcam.separation.tensor.options import DEVICE_BATCH, INIT_PROCESS_PIXELS, Plan, default_lam, resolve
 from polcam.separation.tensor.tiling import blend, tile_batch, tile_spans
 from polcam.separation.tensor.xp import namespace
+from polcam.stokes import imin
 
 __all__ = ["separate_tensor", "initial_diffuse", "warm_up"]
 
@@ -73,10 +75,11 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     Returns
     -------
     diffuse : numpy.ndarray
-        (H, W, 3) float64 on the scale of one polarization image.
+        (H, W, 3) float64 on the scale of one polarization image, in
+        [0, Imin] of ``stack`` (``Imin = Ic - Isv``, :func:`polcam.stokes.imin`).
     info : dict
-        Options used, illuminant, representation fill rate, timings and the
-        IALM record (iterations, converged, residual, residuals; over tiles:
+        Options used, illuminant, representation fill rate, timings, the share
+        of values clipped to Imin (``clipped_to_imin``) and the IALM record (iterations, converged, residual, residuals; over tiles:
         the most iterations, all converged, the largest residual, and the
         residuals of the tile that took longest).
     """
@@ -152,7 +155,7 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     diffuse_w, lam_t, records = _solve(d0, tw, plan)
     timings["ialm"] = time.perf_counter() - t
     return _finish(diffuse_w, gam=gam, scale=scale, filled=filled, lam_t=lam_t, records=records,
-                   timings=timings, plan=plan)
+                   timings=timings, plan=plan, bound=imin(np.asarray(stack, dtype=np.float64)))
 
 
 def _no_sync() -> None:
@@ -302,13 +305,17 @@ def _init_job(args: tuple[str, np.ndarray, dict[str, Any]]) -> np.ndarray:
 
 
 def _finish(diffuse_w: np.ndarray, *, gam: np.ndarray, scale: float, filled: float, lam_t: float,
-            records: list[dict[str, Any]], timings: dict[str, float], plan: Plan
+            records: list[dict[str, Any]], timings: dict[str, float], plan: Plan, bound: np.ndarray
             ) -> tuple[np.ndarray, dict[str, Any]]:
-    """Step 5 and the info dict."""
+    """Step 5 and the info dict; ``bound`` is the input's Imin (H, W, 3)."""
     opt = plan.opt
     h, w = plan.shape
-    # 5. diffuse: representation 1, mean over angles, back to the input's illuminant
+    # 5. diffuse: representation 1, mean over angles, back to the input's illuminant, and at most
+    # the input's Imin: the diffuse is unpolarized, so no polarizer angle removes any of it
     diffuse = diffuse_w * scale * (3.0 * gam)
+    upper = np.maximum(bound, 0.0)
+    above = diffuse > upper
+    diffuse = np.clip(diffuse, 0.0, upper)
     slowest = max(records, key=lambda r: r["iterations"])
     counts: dict[str, int] = {}
     for rec in records:
@@ -334,6 +341,7 @@ def _finish(diffuse_w: np.ndarray, *, gam: np.ndarray, scale: float, filled: flo
         "residuals": slowest["residuals"],
         "final_ranks": slowest["ranks"][-1] if slowest["ranks"] else [],
         "svt_counts": counts,
+        "clipped_to_imin": float(above.mean()),
     }
     if len(records) > 1:
         info["iterations_per_tile"] = [r["iterations"] for r in records]

@@ -56,8 +56,8 @@ DEFAULTS: dict[str, Any] = {
     "tile": None,       # None: exact solver one tile; fast: one tile up to AUTO_UNTILED_PIXELS
                         # pixels, tiles of at most AUTO_TILE (height, width) above; an int
                         # (square) or a (height, width) pair asks for tiles of that size
-    "overlap": 2,       # least overlap of neighbouring tiles (pixels), blended linearly; 2 against
-                        # 4: within 0.03 dB on the ten scenes at 512 x 512, 10-15 % fewer tiles
+    "overlap": 6,       # least overlap of neighbouring tiles (pixels), blended linearly; 2 left
+                        # visible seams on real stacks (docs/algorithm.md, Fast solver, item 7)
     "workers": None,    # processes/threads for the initial diffuse, the tiles and the slices;
                         # None: polcam.parallel.default_workers() (the CPU count, at most 8)
     "device": None,     # None: numpy; "cpu", "cuda", ...: the PyTorch backend (torch extra)

@@ -17,7 +17,7 @@ import numpy as np
 
 from polcam.separation.tensor.xp import namespace
 
-__all__ = ["tile_spans", "ramps", "tile_windows", "tile_batch", "blend", "tiled"]
+__all__ = ["tile_spans", "ramps", "tile_windows", "tile_batch", "blend", "tiled", "seam_jumps"]
 
 
 def tile_spans(n: int, tile: int, overlap: int) -> list[tuple[int, int]]:
@@ -151,3 +151,45 @@ def tiled(shape: tuple[int, int], tile: int | tuple[int, int], overlap: int,
     else:
         results = [solve(*rc) for rc in windows]
     return blend(shape, tile, overlap, results)
+
+
+def seam_jumps(layer: np.ndarray, *, tile: int | tuple[int, int], overlap: int,
+               reference: np.ndarray | None = None, flat: float = 0.5) -> tuple[float, float]:
+    """How much a blended (H, W, C) layer jumps across tile borders and inside tiles.
+
+    The jump of a pixel pair is ``mean_C |f(q) - f(p)|`` over horizontally and
+    vertically adjacent pixels, with ``f = layer`` or, given a ``reference``
+    (the input the layer was computed from), ``f = layer / max(reference, 1e-3)``
+    per channel (the share of the light kept, whose jumps show a seam in
+    intensity or colour and not the input's own edges), counted only over pairs
+    whose reference jump is at most its ``flat`` quantile (flat areas, where a
+    seam shows).  A pair is at a border when it touches the part two
+    neighbouring tiles share (:func:`tile_spans`).  With the true layer known,
+    pass ``layer = estimate - truth`` and no reference: the error's jumps.
+
+    Returns
+    -------
+    border, inside : float
+        Mean jump of the pairs at tile borders and of all others; a seam makes
+        the first larger (a ratio near 1: no seam).
+    """
+    f = np.asarray(layer, dtype=np.float64)
+    ref = None if reference is None else np.asarray(reference, dtype=np.float64)
+    if ref is not None:
+        f = f / np.maximum(ref, 1e-3)
+    h, w = f.shape[:2]
+    ys, xs = _spans((h, w), tile, overlap)
+    at, away = [], []
+    for axis, spans in ((0, ys), (1, xs)):
+        jump = np.abs(np.diff(f, axis=axis)).mean(axis=-1)
+        border = np.zeros(f.shape[axis] - 1, bool)
+        for (_, b0), (a1, _) in zip(spans, spans[1:]):
+            border[max(a1 - 1, 0):b0] = True
+        border = np.broadcast_to(border[:, None] if axis == 0 else border[None, :], jump.shape)
+        keep = np.ones(jump.shape, bool)
+        if ref is not None:
+            rj = np.abs(np.diff(ref, axis=axis)).mean(axis=-1)
+            keep = rj <= np.quantile(rj, flat)
+        at.append(jump[keep & border])
+        away.append(jump[keep & ~border])
+    return float(np.concatenate(at).mean()), float(np.concatenate(away).mean())

@@ -153,6 +153,84 @@ def test_initial_diffuse_is_the_single_image_method_on_each_image():
             np.testing.assert_allclose(got[i, a], np.clip(want, 0, reps[i, a]), atol=1e-12)
 
 
+def _yellow_scene(h=96, w=160, seed=0):
+    """Shaded yellow blocks with dark holes and a broad polarized white highlight: (stack, diffuse)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w] / max(h, w)
+    shade = 0.55 + 0.35 * np.cos(1.3 * (xx - 0.4)) * np.cos(1.1 * (yy - 0.3))
+    holes = ((np.mod(xx * w, 24) - 12) ** 2 + (np.mod(yy * w, 24) - 12) ** 2) < 16
+    D = np.array([0.7, 0.55, 0.1]) * (shade * np.where(holes, 0.4, 1.0))[..., None]
+    S = 0.35 * np.exp(-((xx - 0.55) ** 2 / 0.08 + (yy - 0.45) ** 2 / 0.05))[..., None] * np.ones(3)
+    phi = np.repeat((0.5 + 0.8 * xx + 0.3 * yy)[..., None], 3, -1) % np.pi
+    stack = synthesize(D + S, 0.8 * S, phi) + rng.normal(0, 0.004, (4, h, w, 3))
+    return np.clip(stack, 0, 1), D
+
+
+def test_no_seams_at_tile_borders_with_the_default_overlap():
+    """Planted truth: the error of the diffuse jumps no more across tile borders than inside tiles
+    (measured 1.09 with the default overlap)."""
+    from polcam.separation.tensor.tiling import seam_jumps
+
+    stack, D = _yellow_scene()
+    got = separate(stack, method="tensor", tile=(48, 16), workers=1)
+    assert got.info["tile"] == [48, 16, 6] and got.info["tiles"] > 20
+    b, i = seam_jumps(got.diffuse - D, tile=(48, 16), overlap=6)
+    assert b < 1.15 * i
+
+
+@pytest.mark.slow
+def test_no_seams_on_a_real_stack():
+    """jcpd-15's yellow blocks, mosaicked and demosaiced: the share of the light the diffuse keeps
+    jumps across the 96 x 32 tiles' borders as inside them with the default overlap (1.02; the
+    input's own ratio 1.04), not with the former overlap of 2 (1.11)."""
+    from polcam.demosaic import demosaic, mosaic_stack
+    from polcam.separation.tensor.tiling import seam_jumps
+
+    full = _real_crop(whole=True)
+    dem = np.clip(demosaic(mosaic_stack(full, layout="imx250myr"), layout="imx250myr"), 0, 1)
+    crop = np.ascontiguousarray(dem[:, 284:540, 110:398])
+    ratios = {}
+    for ov in (2, None):
+        res = separate(crop, method="tensor", **({} if ov is None else {"overlap": ov}))
+        tile = res.info["tile"]
+        b, i = seam_jumps(res.diffuse, tile=tile[:2], overlap=tile[2], reference=crop.mean(axis=0))
+        ratios[ov] = b / i
+    assert ratios[None] < 1.06 < ratios[2]
+
+
+def _real_crop(whole=False):
+    import cv2
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real-color-stacks" / "jcpd-15"
+    if not (root / "0.png").exists():
+        pytest.skip("real stacks not found (../shared/data)")
+    ims = []
+    for a in (0, 45, 90, 135):
+        im = cv2.imread(str(root / f"{a}.png"), cv2.IMREAD_UNCHANGED)
+        ims.append(im[..., ::-1].astype(np.float64) / (255.0 if im.dtype == np.uint8 else 65535.0))
+    stack = np.stack(ims)
+    return stack if whole else np.ascontiguousarray(stack[:, 380:444, 300:364])
+
+
+def test_diffuse_never_exceeds_imin():
+    """Unpolarized light never exceeds the minimum of the polarization sinusoid of its stack."""
+    from polcam.stokes import imin
+
+    stack, D = _scene(20)                           # planted truth: D <= Imin everywhere
+    assert np.all(D <= imin(stack) + 1e-12)
+    for kw in ({}, {"solver": "exact"}, {"tile": 12, "overlap": 4, "workers": 1}):
+        res = separate(stack, method="tensor", **kw)
+        assert np.all(res.diffuse <= imin(stack) + 1e-6) and np.all(res.diffuse >= 0)
+        assert 0 <= res.info["clipped_to_imin"] <= 1
+    # a real stack: the unclipped tensor diffuse exceeded Imin on many pixels (7-22 % of real scenes
+    # by more than 3/255)
+    real = _real_crop()
+    res = separate(real, method="tensor")
+    assert res.info["clipped_to_imin"] > 0.01
+    assert np.all(res.diffuse <= np.maximum(imin(real), 0) + 1e-6)
+
+
 # ---------------------------------------------------------------------------
 # the same pipeline on a torch device
 # ---------------------------------------------------------------------------

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from polcam.separation.tensor.operators import unfold
-from polcam.separation.tensor.tiling import blend, ramps, tile_batch, tile_spans, tile_windows, tiled
+from polcam.separation.tensor.tiling import blend, ramps, seam_jumps, tile_batch, tile_spans, tile_windows, tiled
 
 
 @pytest.mark.parametrize("n,tile,overlap", [(10, 16, 4), (16, 16, 4), (40, 16, 4), (37, 12, 5), (100, 30, 0)])
@@ -86,3 +86,20 @@ def test_torch_tiles_and_blend_match_numpy():
         np.testing.assert_array_equal(got, tile_batch(d0, ys, xs))
         out = blend((30, 41), (12, 16), 3, torch.as_tensor(res3, device=dev))
         np.testing.assert_allclose(out.cpu().numpy(), want, atol=1e-12)
+
+
+def test_seam_jumps_find_a_planted_seam_and_no_seam_in_a_smooth_image():
+    yy, xx = np.mgrid[0:60, 0:90] / 90.0
+    smooth = np.stack([0.3 + 0.2 * (xx + yy), 0.4 + 0.1 * (xx + yy), 0.5 - 0.1 * (xx + yy)], axis=-1)
+    b, i = seam_jumps(smooth, tile=(24, 16), overlap=4)
+    assert b / i == pytest.approx(1.0, abs=1e-6)                  # linear: every jump alike
+    # a per-tile offset (what tiles solved apart and joined without blending leave): seams
+    stepped = smooth.copy()
+    for n, (r, c) in enumerate(tile_windows((60, 90), (24, 16), 0)):
+        stepped[r, c] += 0.01 * (n % 3)
+    b, i = seam_jumps(stepped, tile=(24, 16), overlap=0)
+    assert b > 3 * i
+    # against a reference: the share of the light kept; the reference's own edges do not count
+    ref = smooth * np.where(xx > 0.5, 2.0, 1.0)[..., None]          # an edge in the input...
+    b, i = seam_jumps(0.5 * ref, tile=(24, 16), overlap=4, reference=ref)   # ...kept in the layer
+    assert b == pytest.approx(0.0, abs=1e-12) and i == pytest.approx(0.0, abs=1e-12)
