@@ -15,9 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from polcam.separation import default_method
-
 from polcam.cli import main
+from polcam.separation import default_method
 from polcam.errors import FrameWriteError
 from polcam.io import read_frame, read_image, write_frame
 from polcam.process import OUTPUTS, ProcessOptions, plan, process_frame, run
