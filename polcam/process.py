@@ -36,7 +36,6 @@ import json
 import multiprocessing
 import os
 import re
-import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -47,13 +46,14 @@ from typing import Any
 import numpy as np
 
 from polcam import __version__
+from polcam._hashing import sha256_file
 from polcam.errors import PolcamError
+from polcam.sinks.files import FORMATS
 
 __all__ = ["ProcessOptions", "FrameJob", "OUTPUTS", "plan", "process_frame", "run", "sha256_file"]
 
 #: Products written per frame (plus meta.json).
 OUTPUTS: tuple[str, ...] = ("diffuse", "specular", "s0", "dolp", "aolp")
-FORMATS = {"exr": (".exr", None), "tiff": (".tif", "float32"), "tiff16": (".tif", "uint16")}
 _UNIT = ("diffuse", "specular", "dolp")          # products in [0, 1]: uint16 in tiff16
 _TEMP = re.compile(r"^\..+\.tmp(\.[A-Za-z0-9]+)?$")
 
@@ -80,15 +80,6 @@ class FrameJob:
     name: str
 
 
-def sha256_file(path: str | os.PathLike[str]) -> str:
-    """SHA-256 hex digest of a file, read in 1 MiB blocks."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _canonical(obj: Any) -> str:
     return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
 
@@ -110,17 +101,14 @@ def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False) -> t
         Inputs that are neither a readable file nor a folder, and name
         collisions (``input``, ``error``).
     """
-    from polcam.io import RAW_EXTENSIONS
+    from polcam.io.listing import raw_files_in
 
     jobs: dict[str, FrameJob] = {}
     problems: list[dict[str, str]] = []
     for root in inputs:
         root = Path(root)
         if root.is_dir():
-            it = root.rglob("*") if recursive else root.iterdir()
-            files = sorted(f for f in it if f.is_file() and f.suffix.lower() in RAW_EXTENSIONS
-                           and not f.name.startswith("."))
-            for f in files:
+            for f in raw_files_in(root, recursive=recursive):
                 rel = f.relative_to(root).with_suffix("")
                 name = rel.as_posix() if recursive else f.stem
                 if name in jobs:
@@ -156,14 +144,11 @@ def _prepare(job: FrameJob, opts: ProcessOptions) -> tuple[Any, str, dict[str, A
 
     Returns (frame, method, method options, fingerprint parts, fingerprint).
     """
-    from polcam.errors import LayoutError
     from polcam.io import read_frame
+    from polcam.pipeline import require_layout
 
     input_hash = sha256_file(job.input)
-    frame = read_frame(job.input, layout=opts.layout)
-    if frame.layout is None:
-        raise LayoutError("no layout: the file has no sidecar saying it; give --layout "
-                          "(imx250mzr, imx250myr, mono:A,B,C,D or color:A,B,C,D:BAYER)", path=job.input)
+    frame = require_layout(read_frame(job.input, layout=opts.layout), job.input)
     calibration_hash = sha256_file(opts.calibration) if opts.calibration else None
     from polcam.separation import default_method
 
@@ -232,54 +217,34 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
 
 def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, method_options: dict[str, Any],
              parts: dict[str, Any], fingerprint: str, t0: float) -> dict[str, Any]:
-    from polcam import stokes as st
-    from polcam.demosaic import demosaic
-    from polcam.errors import FrameWriteError
-    from polcam.io import write_image
-    from polcam.io.atomic import atomic_write
-    from polcam.separation import method_spec, separate
+    from polcam.pipeline import run_frame
+    from polcam.separation import method_spec
+    from polcam.sinks.files import write_meta, write_products
 
-    timings: dict[str, float] = {}
-    if opts.calibration:
-        frame = _apply_calibration(frame, opts.calibration, parts["calibration_sha256"])
-    timings["read"] = time.perf_counter() - t0
-    t = time.perf_counter()
-    stack = demosaic(frame, method=opts.demosaic, resolution=opts.resolution)
-    timings["demosaic"] = time.perf_counter() - t
-    t = time.perf_counter()
-    s = st.stokes(stack)
-    products: dict[str, np.ndarray] = {"s0": s.s0, "dolp": st.dolp(s), "aolp": st.aolp(s)}
-    timings["stokes"] = time.perf_counter() - t
-    t = time.perf_counter()
+    calibration = _calibration(opts.calibration, parts["calibration_sha256"]) if opts.calibration else None
+    read_seconds = time.perf_counter() - t0
     run_options = dict(method_options)
     if _IN_POOL and "workers" in (method_spec(method).options or ()) and "workers" not in run_options:
         run_options["workers"] = 1  # the frames are the parallel part here (the answer does not change)
-    res = separate(np.clip(stack, 0.0, 1.0), method=method, **run_options)
-    timings["separate"] = time.perf_counter() - t
-    products["diffuse"], products["specular"] = res.diffuse, res.specular
-
-    target = Path(job.target)
-    try:
-        target.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise FrameWriteError(f"cannot create the output folder: {exc.strerror}", path=target) from exc
-    ext, dtype = FORMATS[opts.format]
+    result = run_frame(frame, calibration=calibration, demosaic=opts.demosaic, resolution=opts.resolution,
+                       stokes_products=("s0", "dolp", "aolp"), separate=True, method=method,
+                       method_options=run_options)
+    frame = result.frame
+    timings: dict[str, float] = {"read": read_seconds + result.timings["calibrate"],
+                                 **{k: v for k, v in result.timings.items() if k != "calibrate"}}
     t = time.perf_counter()
     file_meta = {"input": job.input, "method": method, "layout": str(frame.layout),
                  "fingerprint": fingerprint, "polcam_version": __version__}
-    for name in OUTPUTS:
-        arr = products[name]
-        d = ("uint16" if name in _UNIT else "float32") if dtype == "uint16" else dtype
-        if d == "uint16" and name == "specular":
-            arr = np.clip(arr, 0.0, 1.0)
-        write_image(target / f"{name}{ext}", arr, metadata={**file_meta, "product": name}, dtype=d)
+    names = write_products(job.target, {name: result.products[name] for name in OUTPUTS}, fmt=opts.format,
+                           unit=_UNIT, metadata=file_meta)
     timings["write"] = time.perf_counter() - t
-    info = {k: v for k, v in res.info.items() if k not in ("residuals",)}
+    assert result.separation is not None
+    info = {k: v for k, v in result.separation.info.items() if k not in ("residuals",)}
     meta = {
         "input": job.input,
         "input_sha256": parts["input_sha256"],
         "name": job.name,
-        "outputs": [f"{p}{ext}" for p in OUTPUTS],
+        "outputs": names,
         "layout": str(frame.layout),
         "frame": _jsonable({k: v for k, v in frame.metadata.items() if k != "path"}),
         "bit_depth": frame.bit_depth,
@@ -291,32 +256,28 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
         "method_options": _jsonable(method_options),
         "options_requested": _jsonable(asdict(opts)),
         "polcam_version": __version__,
-        "shape": list(stack.shape),
+        "shape": list(result.stack.shape),
         "timings": timings,
         "separation_info": _jsonable(info),
         "fingerprint_parts": parts,
         "fingerprint": fingerprint,
     }
-    with atomic_write(target / "meta.json", "w") as fh:
-        json.dump(meta, fh, indent=2)
+    write_meta(job.target, meta)
     return meta
 
 
 _CALIBRATIONS: dict[tuple[str, str], Any] = {}
 
 
-def _apply_calibration(frame: Any, path: str, digest: str) -> Any:
-    """Dark, flat, defects and the polarimetric correction on the mosaic (polcam.calibration).
-
-    The calibration is loaded once per process (its per-cell matrices are cached on it).
-    """
-    from polcam.calibration import apply_calibration, load_calibration
+def _calibration(path: str, digest: str) -> Any:
+    """The calibration in ``path``, loaded once per process (its per-cell matrices are cached on it)."""
+    from polcam.calibration import load_calibration
 
     key = (str(Path(path).resolve()), digest)
     if key not in _CALIBRATIONS:
         _CALIBRATIONS.clear()
         _CALIBRATIONS[key] = load_calibration(path)
-    return apply_calibration(frame, _CALIBRATIONS[key])
+    return _CALIBRATIONS[key]
 
 
 class RunRecording:
@@ -360,6 +321,16 @@ class RunRecording:
 #: True in the worker processes of :func:`run`: the frames run in parallel there, so a method with
 #: a ``workers`` option (the tensor methods) runs with one instead of starting processes of its own.
 _IN_POOL = False
+
+
+def _pool_context() -> multiprocessing.context.BaseContext:
+    """The start method of the worker processes: the one place process decides it.
+
+    spawn, not fork: forking a process whose libraries run threads (BLAS,
+    OpenImageIO) can deadlock the children.  (To become the package-wide
+    parallel-execution policy's choice.)
+    """
+    return multiprocessing.get_context("spawn")
 
 
 def _init_worker() -> None:
@@ -411,10 +382,8 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
                 break
             done(process_frame(job, opts, force=force))
     else:
-        # spawn, not fork: forking a process whose libraries run threads (BLAS, OpenImageIO)
-        # can deadlock the children
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context(),
+                                 initializer=_init_worker) as pool:
             pending: set[Future[dict[str, Any]]] = set()
             it = iter(jobs)
             exhausted = False
@@ -491,9 +460,3 @@ def default_workers() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux
         return os.cpu_count() or 1
-
-
-if __name__ == "__main__":  # pragma: no cover
-    from polcam.cli import main
-
-    sys.exit(main(["process", *sys.argv[1:]]))

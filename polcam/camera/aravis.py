@@ -23,6 +23,7 @@ from polcam.camera.base import (
     CapturedFrame,
     FrameIdTracker,
 )
+from polcam.camera.registry import register_backend
 from polcam.errors import CameraUnavailableError, LayoutError, PixelFormatError
 from polcam.io.packing import unpack
 from polcam.io.readers import interleave_angles
@@ -726,3 +727,6 @@ class AravisCamera(Camera):
         except Exception:  # noqa: BLE001 - statistics are informational
             pass
         return out
+
+
+register_backend(None, AravisCamera, default=True)  # every device id no other backend's prefix claims

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from polcam.camera.base import Camera, CameraNotFoundError, CameraSettingError, CapturedFrame
+from polcam.camera.registry import register_backend
 from polcam.errors import PixelFormatError, PolcamError
 from polcam.frame import Frame
 from polcam.mosaic import Layout, parse_layout
@@ -335,3 +336,6 @@ class ReplayCamera(Camera):
             if not self.loop:
                 break
         self._finished.set()
+
+
+register_backend("replay:", ReplayCamera)

@@ -12,8 +12,8 @@ from polcam.camera.base import (
     CameraNotFoundError,
     CapturedFrame,
     FrameIdTracker,
-    open_camera,
 )
+from polcam.camera.registry import open_camera
 
 
 def test_frame_id_gaps_counted():
