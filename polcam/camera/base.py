@@ -69,11 +69,11 @@ class CameraSettingError(PolcamError):
     """A setting the camera refuses or does not have (names the setting and the value)."""
 
 
-@dataclass
 class FrameTimeout(TimeoutError):
     """No frame arrived from a started camera within the idle timeout."""
 
 
+@dataclass
 class CapturedFrame(Frame):
     """A frame as a camera delivered it.
 

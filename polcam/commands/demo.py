@@ -21,7 +21,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if not src.is_dir():
         print(f"error: fixture folder {src} not found (give --input DIR)", file=sys.stderr)
         return 2
-    from polcam.commands import main
     from polcam.commands.stokes import run_stokes
     from polcam.io.listing import raw_files_in
 
@@ -35,7 +34,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"1/3 capture: reusing the {len(earlier)} frame(s) an earlier demo captured into {capture_dir}")
     else:
         print(f"1/3 capture: the replay camera plays the {n} frame(s) of {src} into {capture_dir}")
-        code = main(["capture", "--device", f"replay:{src}", "--frames", str(n), "--out", str(capture_dir),
+        code = _run("capture", ["--device", f"replay:{src}", "--frames", str(n), "--out", str(capture_dir),
                      "--separate", "none", "--quiet"])
         if code:
             return code
@@ -47,12 +46,27 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(f"3/3 separation at the polarizer-cell resolution (tensor for colour, imin for mono) -> "
           f"{out / 'layers'}; Rerun recording {out / 'demo.rrd'}")
     sep = ["--method", args.separate] if args.separate else []
-    code = main(["process", str(out / "capture"), "-o", str(out / "layers"), "--demosaic", method,
+    code = _run("process", [str(out / "capture"), "-o", str(out / "layers"), "--demosaic", method,
                  "--rerun", str(out / "demo.rrd"), "--quiet", *sep])
     print(f"demo done: {len(captured)} frame(s) in {out.resolve()}: capture/ (raw frames + sidecars), "
           f"stokes/<frame>/ (i000..i135, s0, s1, s2, dolp, aolp, residual), layers/<frame>/ "
           f"(diffuse, specular, s0, dolp, aolp, meta.json), demo.rrd (view it with `{_rerun_command()} {out / 'demo.rrd'}`)")
     return code
+
+
+def _run(command: str, argv: list[str]) -> int:
+    """Run ``polcam COMMAND ARGV`` (capture or process) as the command line would, in this process."""
+    from polcam import DEMOSAIC_METHODS
+    from polcam.commands import capture, process
+    from polcam.commands._args import run_command
+
+    parser = argparse.ArgumentParser(prog="polcam")
+    sub = parser.add_subparsers(dest="command", required=True)
+    if command == "capture":
+        capture.add_capture_parser(sub)
+    else:
+        process.add_parser(sub, DEMOSAIC_METHODS)
+    return run_command(parser.parse_args([command, *argv]))
 
 
 def _rerun_command() -> str:
