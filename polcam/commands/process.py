@@ -82,7 +82,7 @@ def cmd_process(args: argparse.Namespace) -> int:
         if args.json:
             print(json.dumps({"event": "frame", **r}), flush=True)
         if sink is not None and r["status"] in ("done", "skipped"):
-            sink.log_frame(Path(args.out) / r["name"], proc.FORMATS[opts.format][0], r["name"])
+            sink.log_frame(Path(args.out) / r["name"], FORMATS[opts.format][0], r["name"])
         if progress is not None and task is not None:
             elapsed = time.perf_counter() - t0
             progress.update(task, advance=1, rate=f"{counter['n'] / max(elapsed, 1e-9) * 60:.1f} frames/min")
