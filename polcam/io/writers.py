@@ -17,7 +17,7 @@ AoLP) as OpenEXR or TIFF through OpenImageIO:
 Arrays are (H, W) or (H, W, C) with C in 1..4, floating point; channels are
 named ``Y`` (one), ``Y, A`` (two), ``R, G, B`` (three) or ``R, G, B, A``
 (four).  NaN and inf are refused.  A 2-D array is passed to OpenImageIO as
-(H, W, 1): a plain 2-D array came out transposed (DESIGN.md, section 5).
+(H, W, 1): OpenImageIO 3.2 wrote a plain 2-D uint16 array transposed.
 
 :func:`read_image` reads such a file back as float32 plus its polcam
 metadata.  :func:`write_frame` writes a raw :class:`polcam.frame.Frame`
