@@ -40,7 +40,8 @@ SURFACE: dict[str, set[str]] = {
     "polcam.frame": {"Frame", "SIDECAR_KEYS"},
     "polcam.errors": {"CameraUnavailableError", "FrameReadError", "FrameWriteError", "LayoutError",
                       "MethodError", "PixelFormatError", "PolcamError"},
-    "polcam.process": {"FrameJob", "OUTPUTS", "ProcessOptions", "plan", "process_frame", "run", "sha256_file"},
+    "polcam.process": {"FrameJob", "OUTPUTS", "ProcessOptions", "check_run", "layout_hint", "plan", "process_frame",
+                       "run", "sha256_file"},
 }
 
 

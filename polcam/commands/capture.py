@@ -116,8 +116,9 @@ def cmd_capture(args: argparse.Namespace) -> int:
         with open_camera(args.device, **camera_options(args)) as cam:
             settings = configure_camera(cam, args, quiet=args.quiet)
             if not args.quiet:
-                print(f"capturing from {cam.camera_id}: {settings.get('pixel_format')} "
-                      f"layout {settings.get('layout')} -> {out if out else '(not saved)'}")
+                fmt = settings.get("pixel_format") or "pixel format of the files"
+                lay = settings.get("layout") or "unknown (give --layout for the live view)"
+                print(f"capturing from {cam.camera_id}: {fmt}, layout {lay} -> {out if out else '(not saved)'}")
                 if calibration is not None:
                     print(f"live view calibrated with {args.calibration} "
                           f"({', '.join(calibration.applied_stages) or 'no stages'}); frames saved raw")

@@ -9,9 +9,14 @@ __all__ = ["add_parser", "cmd_formats"]
 
 
 def cmd_formats(args: argparse.Namespace) -> int:
-    from polcam.mosaic import LAYOUTS, PIXEL_FORMATS, _vendor_key
+    from polcam.errors import PixelFormatError
+    from polcam.mosaic import _VENDOR_ALIASES, LAYOUTS, PIXEL_FORMATS, _vendor_key
 
     key = _vendor_key(args.vendor)
+    known = sorted({v for v, _ in PIXEL_FORMATS if v != "*"} | set(_VENDOR_ALIASES.values()))
+    if key is not None and key not in known:
+        raise PixelFormatError(f"--vendor {args.vendor!r}: unknown vendor; known vendors: {', '.join(known)} "
+                               "(or leave --vendor out for every format)")
     print("layouts: " + ", ".join(f"{k} = {v}" for k, v in LAYOUTS.items()))
     print(f"{'vendor':<32} {'pixel format':<44} {'bits':>4} {'packing':<9} {'kind':<12} layout")
     for (vendor, name), f in sorted(PIXEL_FORMATS.items()):

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from polcam.commands._args import parse_options
+from polcam.commands._checks import check_run_options
 from polcam.errors import PolcamError
 from polcam.sinks.files import FORMATS
 
@@ -25,22 +26,24 @@ def cmd_process(args: argparse.Namespace) -> int:
     opts = proc.ProcessOptions(
         method=args.method, method_options=parse_options(args.option),
         layout=args.layout, demosaic=args.demosaic, resolution=args.resolution, format=args.format,
-        calibration=str(args.calibration) if args.calibration else None)
-    if args.method is not None or opts.method_options:
-        from polcam.separation._registry import check_options
-
-        # before any work: an unknown method or option would fail every frame
-        # (without --method the options are the colour default's, tensor)
-        check_options(args.method or "tensor", opts.method_options)
+        calibration=str(args.calibration) if args.calibration else None, max_pixels=args.max_pixels)
+    # before any work (exit 2, nothing created): a bad value would fail every frame
+    check_run_options(layout=args.layout, demosaic=args.demosaic, resolution=args.resolution, fmt=args.format)
     if args.calibration is not None and not args.calibration.is_file():
         print(f"error: calibration file {args.calibration} not found", file=sys.stderr)
         return 2
     jobs, problems = proc.plan(args.inputs, args.out, recursive=args.recursive)
+    missing = [p for p in problems if p["error"] == "no such file or folder"]
+    if missing:
+        for p in missing:
+            print(f"error: {p['input']}: no such file or folder", file=sys.stderr)
+        return 2
     for p in problems:
         print(f"error: {p['input']}: {p['error']}", file=sys.stderr)
     if not jobs and not problems:
         print(f"error: no raw frames found in {', '.join(map(str, args.inputs))}", file=sys.stderr)
         return 2
+    proc.check_run(opts, jobs)
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -155,6 +158,9 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     pr.add_argument("--recursive", action="store_true", help="descend into sub-folders (output names "
                                                             "keep the relative path)")
     pr.add_argument("--force", action="store_true", help="redo frames whose outputs are up to date")
+    pr.add_argument("--max-pixels", type=int, metavar="N",
+                    help="largest frame to read, pixels (default 134217728 = 2^27); a file whose header or "
+                         "sidecar declares more is refused before it is read")
     pr.add_argument("--quiet", action="store_true", help="no progress bar; only errors and failures")
     pr.add_argument("--json", action="store_true", help="machine-readable JSON lines on stdout "
                                                         "(one per frame, then a summary)")

@@ -22,7 +22,8 @@ UNIT_RANGE = ("i000", "i045", "i090", "i135", "dolp")
 
 
 def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, method: str | None,
-               resolution: str, fmt: str, quiet: bool = False) -> dict[str, Any]:
+               resolution: str, fmt: str, quiet: bool = False,
+               max_pixels: int | None = None) -> dict[str, Any]:
     """Every frame of ``files`` through the pipeline's Stokes products into ``out_dir/<stem>/``.
 
     Returns the summary written to ``out_dir/summary.json`` (``done``,
@@ -39,7 +40,7 @@ def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, meth
     for path in files:
         t0 = time.perf_counter()
         try:
-            frame = require_layout(read_frame(path, layout=layout), str(path))
+            frame = require_layout(read_frame(path, layout=layout, max_pixels=max_pixels), str(path))
             result = run_frame(frame, demosaic=method, resolution=resolution, stokes_products=PRODUCTS)
             target = out_dir / path.stem
             meta = {"input": str(path), "layout": str(frame.layout), "demosaic": method,
@@ -79,7 +80,8 @@ def cmd_stokes(args: argparse.Namespace) -> int:
     check_run_options(layout=args.layout, demosaic=args.demosaic, resolution=args.resolution,
                       fmt=args.format)
     summary = run_stokes(files, args.out, layout=args.layout, method=args.demosaic,
-                         resolution=args.resolution, fmt=args.format, quiet=args.quiet)
+                         resolution=args.resolution, fmt=args.format, quiet=args.quiet,
+                         max_pixels=args.max_pixels)
     print(f"{summary['done']} frame(s) written to {args.out}, {len(summary['failed'])} failed")
     return 1 if summary["failed"] else 0
 
@@ -103,6 +105,9 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     s.add_argument("--format", default="exr", choices=tuple(FORMATS),
                    help="exr (float32, default), tiff (float32) or tiff16 (uint16 scaled from [0, 1]; "
                         "signed maps stay float32)")
+    s.add_argument("--max-pixels", type=int, metavar="N",
+                   help="largest frame to read, pixels (default 134217728 = 2^27); a file whose header or "
+                        "sidecar declares more is refused before it is read")
     s.add_argument("--recursive", action="store_true", help="descend into sub-folders")
     s.add_argument("--quiet", action="store_true", help="print only the final line and errors")
     s.set_defaults(func=cmd_stokes)

@@ -107,6 +107,20 @@ RAW_EXTENSIONS: tuple[str, ...] = (
     _OIIO_EXTENSIONS + _PNM_EXTENSIONS + _DUMP_EXTENSIONS + _NPY_EXTENSIONS + _LIBRAW_EXTENSIONS
 )
 
+#: Largest frame :func:`read_frame` reads by default, pixels (a 5 MP sensor has 5 M): a header or
+#: sidecar declaring more is refused before anything that size is allocated (``max_pixels=`` raises it).
+MAX_PIXELS: int = 1 << 27
+
+
+def _check_size(w: int, h: int, max_pixels: int, p: Path, what: str) -> None:
+    """Refuse a declared size of more than ``max_pixels`` pixels before allocating it."""
+    if w * h > max_pixels:
+        raise FrameReadError(
+            f"{what} declares {w}x{h} = {w * h} pixels, more than the limit of {max_pixels} "
+            "(a corrupt or hostile header?); raise the limit (--max-pixels N, max_pixels=) to read it",
+            path=p)
+
+
 # File attributes worth keeping from OpenImageIO's spec.
 _KEPT_ATTRIBUTES = ("Make", "Model", "Software", "DateTime", "Artist", "Copyright", "HostComputer")
 
@@ -198,7 +212,7 @@ def _check_nonempty_file(p: Path) -> None:
 
 
 # ------------------------------------------------------------ format readers
-def _read_oiio(p: Path) -> _Decoded:
+def _read_oiio(p: Path, max_pixels: int = MAX_PIXELS) -> _Decoded:
     import OpenImageIO as oiio
 
     inp = oiio.ImageInput.open(str(p))
@@ -208,6 +222,7 @@ def _read_oiio(p: Path) -> _Decoded:
     try:
         spec = inp.spec()
         fmt_name = inp.format_name()
+        _check_size(spec.width, spec.height, max_pixels, p, "the image header")
         if spec.nchannels != 1:
             names = ", ".join(spec.channelnames)
             raise FrameReadError(
@@ -260,7 +275,7 @@ def _read_oiio(p: Path) -> _Decoded:
 _PNM_TOKEN = re.compile(rb"\s*(?:#[^\n\r]*[\n\r]\s*)*(\S+)")
 
 
-def _read_pnm(p: Path) -> _Decoded:
+def _read_pnm(p: Path, max_pixels: int = MAX_PIXELS) -> _Decoded:
     data = p.read_bytes()
     magic = data[:2]
     if magic in (b"P3", b"P6"):
@@ -288,6 +303,7 @@ def _read_pnm(p: Path) -> _Decoded:
         raise FrameReadError(f"PGM header gives size {w}x{h}: expected positive sizes", path=p)
     if not 1 <= maxval <= 65535:
         raise FrameReadError(f"PGM maxval {maxval}: expected 1 to 65535", path=p)
+    _check_size(w, h, max_pixels, p, "the PGM header")
     n = w * h
     dtype = np.uint8 if maxval < 256 else np.uint16
     if magic == b"P5":
@@ -319,7 +335,8 @@ def _read_pnm(p: Path) -> _Decoded:
                     white_level=float(maxval))
 
 
-def _read_dump(p: Path, opts: dict[str, Any], sources: dict[str, str]) -> tuple[_Decoded, PixelFormat | None]:
+def _read_dump(p: Path, opts: dict[str, Any], sources: dict[str, str],
+               max_pixels: int = MAX_PIXELS) -> tuple[_Decoded, PixelFormat | None]:
     w, h = opts.get("width"), opts.get("height")
     side = sidecar_path(p).name
     if w is None or h is None:
@@ -328,6 +345,7 @@ def _read_dump(p: Path, opts: dict[str, Any], sources: dict[str, str]) -> tuple[
             f"{side} (keys 'width', 'height', 'pixel_format') or as width=/height= (--width/--height)",
             path=p,
         )
+    _check_size(int(w), int(h), max_pixels, p, f"{sources.get('width', 'the keywords')}")
     data = np.fromfile(p, dtype=np.uint8)
     where = f" (width/height from {sources.get('width', 'the keywords')})"
     name = opts.get("pixel_format")
@@ -478,6 +496,7 @@ def read_frame(
     msb_aligned: bool | None = None,
     black_level: float | None = None,
     white_level: float | None = None,
+    max_pixels: int | None = None,
 ) -> Frame:
     """Read a raw polarization mosaic and its metadata.
 
@@ -502,6 +521,10 @@ def read_frame(
         shifted down to counts.
     black_level, white_level
         Counts of black and saturation.
+    max_pixels
+        Largest frame to read, pixels (default :data:`MAX_PIXELS`, 2**27): a
+        header or sidecar that declares more is refused before any
+        allocation of that size.
 
     Returns
     -------
@@ -543,14 +566,15 @@ def read_frame(
     opts.update(kw)
     sources = {k: ("the keywords" if k in kw else f"the sidecar {side_name}") for k in opts}
 
+    limit = MAX_PIXELS if max_pixels is None else int(max_pixels)
     fmt: PixelFormat | None = None
     try:
         if ext in _OIIO_EXTENSIONS:
-            dec = _read_oiio(p)
+            dec = _read_oiio(p, limit)
         elif ext in _PNM_EXTENSIONS:
-            dec = _read_pnm(p)
+            dec = _read_pnm(p, limit)
         elif ext in _DUMP_EXTENSIONS:
-            dec, fmt = _read_dump(p, opts, sources)
+            dec, fmt = _read_dump(p, opts, sources, limit)
         elif ext in _NPY_EXTENSIONS:
             dec = _read_npy(p, opts)
         else:
