@@ -370,7 +370,7 @@ def _calibration(path: str, digest: str) -> Any:
     return _CALIBRATIONS[key]
 
 
-class RunRecording:
+class RunRecording:  # RERUN SINK (process --rerun): to become the shared polcam.sinks.rerun sink
     """A run as a Rerun recording (``--rerun FILE.rrd``): one time step per frame.
 
     Logs, for each finished frame, ``/polarization/s0``, ``/polarization/dolp``,

@@ -151,7 +151,7 @@ class LiveProcessor:
         maps = live_maps(view.mosaic, self.layout, black_level=view.black_level,
                          white_level=view.white_level)
         sink = self.sink
-        if sink is not None:
+        if sink is not None:  # RERUN SINK call site (capture live view)
             sink.log_raw(index, ts, frame.mosaic, bit_depth=frame.bit_depth)  # raw is raw
             sink.log_polarization(index, ts, ic=maps.ic, dolp=maps.dolp, aolp=maps.aolp, scale=maps.scale)
         if self.method == "imin":
@@ -173,7 +173,7 @@ class LiveProcessor:
         c = self.counters
         with c.lock:
             fps, dropped, incomplete = c.fps, c.dropped, c.incomplete
-        self.sink.log_stats(index, ts, fps=fps, dropped=dropped, incomplete=incomplete)
+        self.sink.log_stats(index, ts, fps=fps, dropped=dropped, incomplete=incomplete)  # RERUN SINK call site
 
     def _run_separation(self) -> None:
         while True:
@@ -191,7 +191,7 @@ class LiveProcessor:
                 dt = time.perf_counter() - t0
                 self.separation_seconds.append(dt)
                 self.separations += 1
-                if self.sink is not None:
+                if self.sink is not None:  # RERUN SINK call site (separation layers)
                     ts = frame.metadata.get("timestamp_ns")
                     self.sink.log_layers(index, ts, diffuse=res.diffuse, specular=res.specular)
                     self.sink.log_stats(index, ts, separation_seconds=dt)

@@ -261,7 +261,7 @@ def run_capture(
     new_rrd = None  # a recording file this capture creates (removed again if the calibration refuses)
     if rerun is not None and str(rerun) not in ("spawn", "serve") and not Path(rerun).exists():
         new_rrd = Path(rerun)
-    if rerun is not None:  # before any thread starts: a viewer that cannot start is a plain error
+    if rerun is not None:  # RERUN SINK created; before any thread starts: a viewer that cannot start is a plain error
         from polcam.sinks.rerun import RerunSink
 
         sink = RerunSink(rerun, raw_every=raw_every, view_scale=view_scale)

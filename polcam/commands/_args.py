@@ -17,6 +17,7 @@ from polcam.errors import CameraUnavailableError, PolcamError
 
 __all__ = [
     "CAMERA_SETTINGS",
+    "add_max_pixels_argument",
     "add_camera_arguments",
     "camera_options",
     "configure_camera",
@@ -35,6 +36,13 @@ def parse_option(text: str, *, flag: str = "--option") -> tuple[str, Any]:
         return key.strip(), json.loads(value)
     except ValueError:
         return key.strip(), value
+
+
+def add_max_pixels_argument(parser: Any) -> None:
+    """``--max-pixels N``: the largest frame a command reads (a larger declared size is refused unread)."""
+    parser.add_argument("--max-pixels", type=int, metavar="N",
+                        help="largest frame to read, pixels (default 134217728 = 2^27); a file whose header "
+                             "or sidecar declares more is refused before it is read")
 
 
 def parse_options(texts: list[str] | None, *, flag: str = "--option") -> dict[str, Any]:

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from polcam.commands._args import parse_options
+from polcam.commands._args import add_max_pixels_argument, parse_options
 from polcam.commands._checks import check_run_options
 from polcam.errors import PolcamError
 from polcam.sinks.files import FORMATS
@@ -57,7 +57,7 @@ def cmd_process(args: argparse.Namespace) -> int:
 
     old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     sink = None
-    if args.rerun is not None:
+    if args.rerun is not None:  # RERUN SINK call site (process --rerun)
         sink = proc.RunRecording(args.rerun, [j.name for j in jobs])
     t0 = time.perf_counter()
     progress = None
@@ -84,7 +84,7 @@ def cmd_process(args: argparse.Namespace) -> int:
                 print(msg, file=sys.stderr)
         if args.json:
             print(json.dumps({"event": "frame", **r}), flush=True)
-        if sink is not None and r["status"] in ("done", "skipped"):
+        if sink is not None and r["status"] in ("done", "skipped"):  # RERUN SINK call site
             sink.log_frame(Path(args.out) / r["name"], FORMATS[opts.format][0], r["name"])
         if progress is not None and task is not None:
             elapsed = time.perf_counter() - t0
@@ -158,9 +158,7 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     pr.add_argument("--recursive", action="store_true", help="descend into sub-folders (output names "
                                                             "keep the relative path)")
     pr.add_argument("--force", action="store_true", help="redo frames whose outputs are up to date")
-    pr.add_argument("--max-pixels", type=int, metavar="N",
-                    help="largest frame to read, pixels (default 134217728 = 2^27); a file whose header or "
-                         "sidecar declares more is refused before it is read")
+    add_max_pixels_argument(pr)
     pr.add_argument("--quiet", action="store_true", help="no progress bar; only errors and failures")
     pr.add_argument("--json", action="store_true", help="machine-readable JSON lines on stdout "
                                                         "(one per frame, then a summary)")

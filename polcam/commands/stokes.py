@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from polcam import __version__
+from polcam.commands._args import add_max_pixels_argument
 from polcam.errors import PolcamError
 from polcam.sinks.files import FORMATS
 
@@ -105,9 +106,7 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     s.add_argument("--format", default="exr", choices=tuple(FORMATS),
                    help="exr (float32, default), tiff (float32) or tiff16 (uint16 scaled from [0, 1]; "
                         "signed maps stay float32)")
-    s.add_argument("--max-pixels", type=int, metavar="N",
-                   help="largest frame to read, pixels (default 134217728 = 2^27); a file whose header or "
-                        "sidecar declares more is refused before it is read")
+    add_max_pixels_argument(s)
     s.add_argument("--recursive", action="store_true", help="descend into sub-folders")
     s.add_argument("--quiet", action="store_true", help="print only the final line and errors")
     s.set_defaults(func=cmd_stokes)
