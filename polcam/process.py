@@ -63,7 +63,7 @@ _TEMP = re.compile(r"^\..+\.tmp(\.[A-Za-z0-9]+)?$")
 class ProcessOptions:
     """What determines a run's outputs (besides the input files)."""
 
-    method: str | None = None            # None: tensor for colour, imin for mono
+    method: str | None = None            # None: the registry's default per frame (default_method)
     method_options: dict[str, Any] = field(default_factory=dict)
     layout: str | None = None            # overrides the sidecar
     demosaic: str = "bilinear"

@@ -18,6 +18,7 @@ from polcam.errors import CameraUnavailableError, PolcamError
 __all__ = [
     "CAMERA_SETTINGS",
     "add_max_pixels_argument",
+    "default_methods_text",
     "add_camera_arguments",
     "camera_options",
     "configure_camera",
@@ -43,6 +44,13 @@ def add_max_pixels_argument(parser: Any) -> None:
     parser.add_argument("--max-pixels", type=int, metavar="N",
                         help="largest frame to read, pixels (default 134217728 = 2^27); a file whose header "
                              "or sidecar declares more is refused before it is read")
+
+
+def default_methods_text() -> str:
+    """``"tensor for colour, imin for mono"``: the registry's default separation per frame kind."""
+    from polcam.separation import default_method
+
+    return f"{default_method('stack')} for colour, {default_method('mono-stack')} for mono"
 
 
 def parse_options(texts: list[str] | None, *, flag: str = "--option") -> dict[str, Any]:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from polcam import __version__
+from polcam.commands._args import default_methods_text
 
 __all__ = ["FIXTURES", "add_parser", "cmd_demo"]
 
@@ -43,7 +44,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     summary = run_stokes(captured, out / "stokes", layout=None, method=method, resolution="full", fmt="exr")
     if summary["failed"]:
         return 1
-    print(f"3/3 separation at the polarizer-cell resolution (tensor for colour, imin for mono) -> "
+    print(f"3/3 separation at the polarizer-cell resolution ({default_methods_text()}) -> "
           f"{out / 'layers'}; Rerun recording {out / 'demo.rrd'}")
     sep = ["--method", args.separate] if args.separate else []
     code = _run("process", [str(out / "capture"), "-o", str(out / "layers"), "--demosaic", method,
@@ -89,6 +90,6 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     d.add_argument("--out", type=Path, default=Path("demo-output"), help="output folder (default demo-output)")
     d.add_argument("--input", type=Path, help="folder of raw frames (default: the bundled fixtures)")
     d.add_argument("--demosaic", choices=demosaic_methods, help="demosaicing method (default: eari)")
-    d.add_argument("--separate", help="separation method (default: tensor for colour, imin for mono)")
+    d.add_argument("--separate", help=f"separation method (default: {default_methods_text()})")
     d.set_defaults(func=cmd_demo)
     return d

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from polcam.commands._args import add_max_pixels_argument, parse_options
+from polcam.commands._args import add_max_pixels_argument, default_methods_text, parse_options
 from polcam.commands._checks import check_run_options
 from polcam.errors import PolcamError
 from polcam.sinks.files import FORMATS
@@ -136,8 +136,8 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     pr.add_argument("-o", "--out", type=Path, required=True, help="output folder")
     pr.add_argument("--layout", help="sensor layout; overrides the sidecar (imx250mzr, imx250myr, "
                                      "mono:A,B,C,D, color:A,B,C,D:BAYER)")
-    pr.add_argument("--method", help="separation method (default: tensor for colour layouts, imin for "
-                                     "mono); one of polcam.METHODS")
+    pr.add_argument("--method", help=f"separation method (default: {default_methods_text()}); one of "
+                                     "polcam.METHODS")
     pr.add_argument("--option", action="append", metavar="KEY=VALUE",
                     help="a separation option, VALUE as JSON (repeatable), e.g. --option max_iter=50")
     pr.add_argument("--demosaic", default="bilinear", choices=demosaic_methods,
