@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections.abc import Sequence
@@ -62,8 +63,6 @@ def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, meth
             failed.append({"input": str(path), "error": str(exc)})
             print(f"error: {exc}", file=sys.stderr)
     summary = {"done": len(done), "failed": failed, "frames": done}
-    import json
-
     with atomic_write(out_dir / "summary.json", "w") as fh:
         json.dump(summary, fh, indent=2)
     return summary

@@ -81,7 +81,7 @@ from typing import Any
 
 import numpy as np
 
-from polcam.errors import FrameReadError, LayoutError, PixelFormatError
+from polcam.errors import FrameReadError, LayoutError
 from polcam.frame import Frame
 from polcam.io.decoders import (
     _DUMP_EXTENSIONS,

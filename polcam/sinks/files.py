@@ -21,7 +21,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np  # noqa: F401 - array type in the signatures
+import numpy as np
 
 from polcam.errors import FrameWriteError, MethodError
 
