@@ -43,6 +43,7 @@ __all__ = [
     "FrameResult",
     "LiveMaps",
     "calibrate",
+    "default_demosaic",
     "live_maps",
     "products",
     "require_layout",
@@ -91,11 +92,20 @@ def calibrate(frame: Frame, calibration: Calibration | None) -> Frame:
     return apply_calibration(frame, calibration, polarimetric="mosaic")
 
 
+#: The demosaicing method used where none is named (process, stokes, demo): one place decides it.
+_DEFAULT_DEMOSAIC = "bilinear"
+
+
+def default_demosaic() -> str:
+    """The demosaicing method process, stokes and the demo use when none is named."""
+    return _DEFAULT_DEMOSAIC
+
+
 def to_stack(frame: Frame, *, layout: str | Layout | None = None, method: str | None = None,
              resolution: str = "full") -> np.ndarray:
     """Demosaic ``frame`` into a float32 stack (4, H, W) mono or (4, H, W, 3) RGB (halved at ``cell``).
 
-    ``method`` ``None`` is the demosaicing registry's default.  Linear values
+    ``method`` ``None``: :func:`default_demosaic`.  Linear values
     on the scale of the normalised frame (not clipped).
     """
     from polcam.demosaic import demosaic as _demosaic  # the one demosaic import of the pipeline
@@ -103,8 +113,7 @@ def to_stack(frame: Frame, *, layout: str | Layout | None = None, method: str | 
     kwargs: dict[str, Any] = {"resolution": resolution}
     if layout is not None:
         kwargs["layout"] = layout
-    if method is not None:
-        kwargs["method"] = method
+    kwargs["method"] = method or default_demosaic()
     return _demosaic(frame, **kwargs)
 
 

@@ -48,6 +48,7 @@ import numpy as np
 from polcam import __version__
 from polcam._hashing import sha256_file
 from polcam.errors import PolcamError
+from polcam.pipeline import default_demosaic
 from polcam.sinks.files import FORMATS
 
 __all__ = ["ProcessOptions", "FrameJob", "OUTPUTS", "check_run", "layout_hint", "plan", "process_frame", "run",
@@ -66,7 +67,7 @@ class ProcessOptions:
     method: str | None = None            # None: the registry's default per frame (default_method)
     method_options: dict[str, Any] = field(default_factory=dict)
     layout: str | None = None            # overrides the sidecar
-    demosaic: str = "bilinear"
+    demosaic: str = field(default_factory=default_demosaic)
     resolution: str = "cell"
     format: str = "exr"
     calibration: str | None = None       # path of a calibration file

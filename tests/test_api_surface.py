@@ -30,7 +30,7 @@ SURFACE: dict[str, set[str]] = {
                            "forward", "load_calibration", "measurement_rows", "save_calibration"},
     "polcam.stokes": {"Sinusoid", "Stokes", "aolp", "dolp", "fit_residual", "fit_sinusoid", "imax", "imin",
                       "stokes", "synthesize"},
-    "polcam.pipeline": {"FrameResult", "LiveMaps", "PRODUCTS", "calibrate", "live_maps", "products",
+    "polcam.pipeline": {"FrameResult", "LiveMaps", "PRODUCTS", "calibrate", "default_demosaic", "live_maps", "products",
                         "require_layout", "run_frame", "separate_layers", "to_stack"},
     "polcam.sinks.files": {"FORMATS", "check_format", "extension", "write_meta", "write_products"},
     "polcam.acquisition": {"Counters", "FrameSaver", "LiveProcessor", "SAVE_FORMATS", "StopRequest",

@@ -26,7 +26,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from polcam.io.listing import raw_files_in
 
     out: Path = args.out
-    method = args.demosaic or "eari"
+    from polcam.pipeline import default_demosaic
+
+    method = args.demosaic or default_demosaic()
     print(f"polcam {__version__} demo: raw frames in {src} -> {out}")
     n = len(raw_files_in(src))
     capture_dir = out / "capture"
@@ -89,7 +91,7 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
                                    "for the Rerun viewer, all under --out.")
     d.add_argument("--out", type=Path, default=Path("demo-output"), help="output folder (default demo-output)")
     d.add_argument("--input", type=Path, help="folder of raw frames (default: the bundled fixtures)")
-    d.add_argument("--demosaic", choices=demosaic_methods, help="demosaicing method (default: eari)")
+    d.add_argument("--demosaic", choices=demosaic_methods, help="demosaicing method (default: the one process and stokes use)")
     d.add_argument("--separate", help=f"separation method (default: {default_methods_text()})")
     d.set_defaults(func=cmd_demo)
     return d

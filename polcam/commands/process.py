@@ -13,6 +13,7 @@ from typing import Any
 from polcam.commands._args import add_max_pixels_argument, default_methods_text, parse_options
 from polcam.commands._checks import check_run_options
 from polcam.errors import PolcamError
+from polcam.pipeline import default_demosaic
 from polcam.sinks.files import FORMATS
 
 __all__ = ["add_parser", "cmd_process"]
@@ -140,8 +141,8 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
                                      "polcam.METHODS")
     pr.add_argument("--option", action="append", metavar="KEY=VALUE",
                     help="a separation option, VALUE as JSON (repeatable), e.g. --option max_iter=50")
-    pr.add_argument("--demosaic", default="bilinear", choices=demosaic_methods,
-                    help="demosaicing method (default bilinear)")
+    pr.add_argument("--demosaic", default=default_demosaic(), choices=demosaic_methods,
+                    help=f"demosaicing method (default {default_demosaic()})")
     pr.add_argument("--resolution", default="cell", choices=("cell", "full"),
                     help="cell: one pixel per 2x2 polarizer cell (default; 1224x1024 for a 5 MP sensor); "
                          "full: one per sensor pixel")

@@ -15,6 +15,7 @@ import numpy as np
 from polcam import __version__
 from polcam.commands._args import add_max_pixels_argument
 from polcam.errors import PolcamError
+from polcam.pipeline import default_demosaic
 from polcam.sinks.files import FORMATS
 
 __all__ = ["add_parser", "cmd_stokes", "run_stokes"]
@@ -98,8 +99,8 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     s.add_argument("-o", "--out", type=Path, required=True, help="output folder")
     s.add_argument("--layout", help="sensor layout (imx250mzr, imx250myr, mono:A,B,C,D, "
                                     "color:A,B,C,D:BAYER); default: from the sidecar / pixel format")
-    s.add_argument("--demosaic", default="bilinear", choices=demosaic_methods,
-                   help="demosaicing method (default: bilinear)")
+    s.add_argument("--demosaic", default=default_demosaic(), choices=demosaic_methods,
+                   help=f"demosaicing method (default: {default_demosaic()})")
     s.add_argument("--resolution", default="full", choices=("full", "cell"),
                    help="full: one output pixel per sensor pixel (default); cell: one per 2x2 polarizer cell")
     s.add_argument("--format", default="exr", choices=tuple(FORMATS),
