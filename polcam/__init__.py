@@ -9,20 +9,35 @@ from __future__ import annotations
 from importlib.metadata import PackageNotFoundError, version
 
 from polcam import stokes
-from polcam.demosaicing import DEMOSAIC_METHODS, demosaic
+from polcam.demosaicing import demosaic
 from polcam.errors import PolcamError
 from polcam.frame import Frame
 from polcam.mosaic import Layout, parse_layout
-from polcam.separation import METHODS, Separation, separate
+from polcam.separation import Separation, separate
+
+_LAZY_IO = ("read_frame", "read_image", "write_image")
 
 
+def __getattr__(name: str):
+    """``METHODS`` / ``DEMOSAIC_METHODS`` read the registries now (a method registered later is listed);
+    the file functions load polcam.io (OpenImageIO, rawpy) on first use."""
+    if name == "METHODS":
+        from polcam.separation import methods
 
-def __getattr__(name: str):  # lazy: polcam.io pulls in OpenImageIO and rawpy
-    if name in ("read_frame", "write_image"):
+        return methods()
+    if name == "DEMOSAIC_METHODS":
+        from polcam.demosaicing import methods as demosaic_methods
+
+        return demosaic_methods()
+    if name in _LAZY_IO:
         from polcam import io
 
         return getattr(io, name)
     raise AttributeError(f"module 'polcam' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
 
 
 try:
@@ -42,6 +57,7 @@ __all__ = [
     "demosaic",
     "parse_layout",
     "read_frame",
+    "read_image",
     "stokes",
     "write_image",
 ]

@@ -2,6 +2,6 @@
 
 import sys
 
-from polcam.cli import main
+from polcam.commands import main
 
 sys.exit(main())

@@ -11,7 +11,7 @@ from polcam.mosaic import Layout, parse_layout
 
 __all__ = ["Frame", "SIDECAR_KEYS"]
 
-#: Keys of the JSON sidecar ``<stem>.json`` written beside a raw frame (DESIGN.md section 3).
+#: Keys of the JSON sidecar ``<stem>.json`` written beside a raw frame (docs/cameras.md lists them).
 SIDECAR_KEYS: tuple[str, ...] = (
     "layout", "pixel_format", "vendor", "width", "height", "bit_depth", "msb_aligned",
     "black_level", "white_level", "exposure_us", "gain_db", "timestamp_ns", "frame_id",
@@ -79,7 +79,7 @@ class Frame:
         return ((self.mosaic.astype(np.float32) - np.float32(black)) / np.float32(span)).astype(np.float32)
 
     def sidecar(self) -> dict[str, Any]:
-        """The metadata as the sidecar JSON dictionary (DESIGN.md section 3)."""
+        """The metadata as the sidecar JSON dictionary (keys: :data:`SIDECAR_KEYS`)."""
         h, w = self.shape
         out: dict[str, Any] = {
             "layout": None if self.layout is None else self.layout.short_name,

@@ -24,7 +24,7 @@ Public API::
     default_workers(limit=MAX_AUTO_WORKERS) -> int      # CPU count, at most limit
     context(preload=()) -> multiprocessing context        # the start method above
     start_workers(preload=()) -> str                      # start the fork server now
-    process_pool(workers, *, preload=(), blas_threads=1)  # a ProcessPoolExecutor
+    process_pool(workers, *, preload=(), blas_threads=1, initializer=None)  # a ProcessPoolExecutor
     map_processes(fn, jobs, workers, ...) -> list         # [fn(j) for j in jobs] in processes
     submit_processes(fn, jobs, workers, ...) -> (pool, futures)
     blas_limit(threads=1)                                 # context manager, this process
@@ -102,9 +102,11 @@ def start_workers(preload: Sequence[str] = ()) -> str:
     return method
 
 
-def _limit_blas(threads: int) -> None:
-    """Worker initializer: at most ``threads`` BLAS/OpenMP threads for the worker's life."""
+def _limit_blas(threads: int, then: Callable[[], None] | None = None) -> None:
+    """Worker initializer: at most ``threads`` BLAS/OpenMP threads for the worker's life, then ``then()``."""
     threadpool_limits(limits=threads)
+    if then is not None:
+        then()
 
 
 def blas_limit(threads: int = 1) -> Any:
@@ -112,10 +114,14 @@ def blas_limit(threads: int = 1) -> Any:
     return threadpool_limits(limits=threads, user_api="blas")
 
 
-def process_pool(workers: int, *, preload: Sequence[str] = (), blas_threads: int = 1) -> ProcessPoolExecutor:
-    """A pool of ``workers`` processes started by :func:`context`, each with ``blas_threads`` BLAS threads."""
+def process_pool(workers: int, *, preload: Sequence[str] = (), blas_threads: int = 1,
+                 initializer: Callable[[], None] | None = None) -> ProcessPoolExecutor:
+    """A pool of ``workers`` processes started by :func:`context`, each with ``blas_threads`` BLAS threads.
+
+    ``initializer``: a module-level function each worker runs once after limiting its threads.
+    """
     return ProcessPoolExecutor(max_workers=workers, mp_context=context(preload), initializer=_limit_blas,
-                               initargs=(int(blas_threads),))
+                               initargs=(int(blas_threads), initializer))
 
 
 def submit_processes(fn: Callable[[Any], Any], jobs: Iterable[Any], workers: int, *,

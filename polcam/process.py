@@ -33,13 +33,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing
 import os
 import re
-import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,13 +45,18 @@ from typing import Any
 import numpy as np
 
 from polcam import __version__
+from polcam._hashing import sha256_file
 from polcam.errors import PolcamError
+from polcam.parallel import default_workers as parallel_default_workers
+from polcam.parallel import process_pool
+from polcam.pipeline import default_demosaic
+from polcam.sinks.files import FORMATS
 
-__all__ = ["ProcessOptions", "FrameJob", "OUTPUTS", "plan", "process_frame", "run", "sha256_file"]
+__all__ = ["ProcessOptions", "FrameJob", "OUTPUTS", "check_run", "layout_hint", "plan", "process_frame", "run",
+           "sha256_file"]
 
 #: Products written per frame (plus meta.json).
 OUTPUTS: tuple[str, ...] = ("diffuse", "specular", "s0", "dolp", "aolp")
-FORMATS = {"exr": (".exr", None), "tiff": (".tif", "float32"), "tiff16": (".tif", "uint16")}
 _UNIT = ("diffuse", "specular", "dolp")          # products in [0, 1]: uint16 in tiff16
 _TEMP = re.compile(r"^\..+\.tmp(\.[A-Za-z0-9]+)?$")
 
@@ -62,13 +65,14 @@ _TEMP = re.compile(r"^\..+\.tmp(\.[A-Za-z0-9]+)?$")
 class ProcessOptions:
     """What determines a run's outputs (besides the input files)."""
 
-    method: str | None = None            # None: tensor for colour, imin for mono
+    method: str | None = None            # None: the registry's default per frame (default_method)
     method_options: dict[str, Any] = field(default_factory=dict)
     layout: str | None = None            # overrides the sidecar
-    demosaic: str = "bilinear"
+    demosaic: str | None = None          # None: the demosaicing registry's default for the layout
     resolution: str = "cell"
     format: str = "exr"
     calibration: str | None = None       # path of a calibration file
+    max_pixels: int | None = None        # largest frame read (None: polcam.io's default limit)
 
 
 @dataclass(frozen=True)
@@ -78,15 +82,6 @@ class FrameJob:
     input: str
     target: str
     name: str
-
-
-def sha256_file(path: str | os.PathLike[str]) -> str:
-    """SHA-256 hex digest of a file, read in 1 MiB blocks."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _canonical(obj: Any) -> str:
@@ -110,17 +105,14 @@ def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False) -> t
         Inputs that are neither a readable file nor a folder, and name
         collisions (``input``, ``error``).
     """
-    from polcam.io import RAW_EXTENSIONS
+    from polcam.io.listing import raw_files_in
 
     jobs: dict[str, FrameJob] = {}
     problems: list[dict[str, str]] = []
     for root in inputs:
         root = Path(root)
         if root.is_dir():
-            it = root.rglob("*") if recursive else root.iterdir()
-            files = sorted(f for f in it if f.is_file() and f.suffix.lower() in RAW_EXTENSIONS
-                           and not f.name.startswith("."))
-            for f in files:
+            for f in raw_files_in(root, recursive=recursive):
                 rel = f.relative_to(root).with_suffix("")
                 name = rel.as_posix() if recursive else f.stem
                 if name in jobs:
@@ -156,27 +148,26 @@ def _prepare(job: FrameJob, opts: ProcessOptions) -> tuple[Any, str, dict[str, A
 
     Returns (frame, method, method options, fingerprint parts, fingerprint).
     """
-    from polcam.errors import LayoutError
     from polcam.io import read_frame
+    from polcam.pipeline import require_layout
 
     input_hash = sha256_file(job.input)
-    frame = read_frame(job.input, layout=opts.layout)
-    if frame.layout is None:
-        raise LayoutError("no layout: the file has no sidecar saying it; give --layout "
-                          "(imx250mzr, imx250myr, mono:A,B,C,D or color:A,B,C,D:BAYER)", path=job.input)
+    frame = require_layout(read_frame(job.input, layout=opts.layout, max_pixels=opts.max_pixels), job.input)
     calibration_hash = sha256_file(opts.calibration) if opts.calibration else None
     from polcam.separation import default_method
 
     method = opts.method or default_method("stack" if frame.layout.is_color else "mono-stack")
-    # without --method, the options are the colour default's (tensor): imin takes none
-    method_options = dict(opts.method_options) if (opts.method or frame.layout.is_color) else {}
+    # without --method each frame's default method gets the options it takes (check_run made sure
+    # that every option is taken by some method of the run)
+    method_options = (dict(opts.method_options) if opts.method else
+                      {k: v for k, v in opts.method_options.items() if _takes(method, k)})
     parts = {
         "input_sha256": input_hash,
         "layout": str(frame.layout),
         "black_level": float(frame.black_level),
         "white_level": float(frame.white_level),
         "calibration_sha256": calibration_hash,
-        "demosaic": opts.demosaic,
+        "demosaic": opts.demosaic or default_demosaic(frame.layout),
         "resolution": opts.resolution,
         "method": method,
         "method_options": _jsonable(method_options),
@@ -184,6 +175,92 @@ def _prepare(job: FrameJob, opts: ProcessOptions) -> tuple[Any, str, dict[str, A
         "polcam_version": __version__,
     }
     return frame, method, method_options, parts, hashlib.sha256(_canonical(parts).encode()).hexdigest()
+
+
+def _takes(method: str, option: str) -> bool:
+    from polcam.errors import MethodError
+    from polcam.separation._registry import check_options
+
+    try:
+        check_options(method, {option: None})
+    except MethodError:
+        return False
+    return True
+
+
+def layout_hint(path: str | os.PathLike[str]) -> Any:
+    """The layout a frame's sidecar declares (its ``layout``, else its pixel format's), or ``None``.
+
+    Reads the sidecar only, not the pixels; a sidecar that cannot be read gives ``None`` (the
+    frame's own read reports it).
+    """
+    from polcam.io import read_sidecar
+    from polcam.mosaic import layout_for_format, parse_layout, pixel_format
+
+    try:
+        side = read_sidecar(path) or {}
+        if side.get("layout"):
+            return parse_layout(side["layout"])
+        if side.get("pixel_format"):
+            return layout_for_format(pixel_format(side["pixel_format"], side.get("vendor")))
+    except (PolcamError, OSError):
+        return None
+    return None
+
+
+def check_run(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, str]:
+    """Check the method and options against the frames before any work; the method per input form.
+
+    Without ``opts.method`` each frame runs the registry's default for its form (colour stack
+    or mono stack); the forms are known from ``opts.layout``, else from the frames' sidecars
+    (both forms are assumed where no sidecar says).
+
+    Returns
+    -------
+    dict
+        Input form (``"stack"``, ``"mono-stack"``) -> method of the frames of that form.
+
+    Raises
+    ------
+    MethodError
+        An unknown method; an option the named method does not take, or (no method named)
+        that no method of the run takes; a colour-only method with a mono ``--layout``.
+    LayoutError
+        An unknown ``opts.layout``.
+    """
+    from polcam.errors import MethodError
+    from polcam.mosaic import parse_layout
+    from polcam.separation import default_method, method_spec, methods
+    from polcam.separation._registry import check_options
+
+    if opts.layout is not None:
+        lay = parse_layout(opts.layout)
+        forms = {"stack" if lay.is_color else "mono-stack"}
+    else:
+        hints = [layout_hint(j.input) for j in jobs]
+        forms = {"stack" if h.is_color else "mono-stack" for h in hints if h is not None}
+        if not forms or any(h is None for h in hints):
+            forms |= {"stack", "mono-stack"}
+    if opts.method is not None:
+        spec = method_spec(opts.method)
+        check_options(opts.method, dict(opts.method_options))
+        if opts.layout is not None and forms == {"mono-stack"} and not spec.mono:
+            mono = ", ".join(m for m in methods() if method_spec(m).mono)
+            raise MethodError(f"--method {opts.method}: it needs colour frames and --layout {opts.layout} is "
+                              f"a mono layout; for mono frames use one of {mono}")
+        return {f: opts.method for f in sorted(forms)}
+    chosen = {f: default_method(f) for f in sorted(forms)}
+    for key in opts.method_options:
+        if not any(_takes(m, key) for m in chosen.values()):
+            reasons = []
+            for m in sorted(set(chosen.values())):
+                try:
+                    check_options(m, {key: None})
+                except MethodError as exc:
+                    reasons.append(str(exc))
+            used = ", ".join(f"{m} for {'colour' if f == 'stack' else 'mono'} frames" for f, m in chosen.items())
+            raise MethodError(f"--option {key}: no method of this run ({used}) takes it: {'; '.join(reasons)}")
+    return chosen
 
 
 def _remove_stale_temps(folder: Path) -> int:
@@ -232,54 +309,34 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
 
 def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, method_options: dict[str, Any],
              parts: dict[str, Any], fingerprint: str, t0: float) -> dict[str, Any]:
-    from polcam import stokes as st
-    from polcam.demosaicing import demosaic
-    from polcam.errors import FrameWriteError
-    from polcam.io import write_image
-    from polcam.io.atomic import atomic_write
-    from polcam.separation import method_spec, separate
+    from polcam.pipeline import run_frame
+    from polcam.separation import method_spec
+    from polcam.sinks.files import write_meta, write_products
 
-    timings: dict[str, float] = {}
-    if opts.calibration:
-        frame = _apply_calibration(frame, opts.calibration, parts["calibration_sha256"])
-    timings["read"] = time.perf_counter() - t0
-    t = time.perf_counter()
-    stack = demosaic(frame, method=opts.demosaic, resolution=opts.resolution)
-    timings["demosaic"] = time.perf_counter() - t
-    t = time.perf_counter()
-    s = st.stokes(stack)
-    products: dict[str, np.ndarray] = {"s0": s.s0, "dolp": st.dolp(s), "aolp": st.aolp(s)}
-    timings["stokes"] = time.perf_counter() - t
-    t = time.perf_counter()
+    calibration = _calibration(opts.calibration, parts["calibration_sha256"]) if opts.calibration else None
+    read_seconds = time.perf_counter() - t0
     run_options = dict(method_options)
     if _IN_POOL and "workers" in (method_spec(method).options or ()) and "workers" not in run_options:
         run_options["workers"] = 1  # the frames are the parallel part here (the answer does not change)
-    res = separate(np.clip(stack, 0.0, 1.0), method=method, **run_options)
-    timings["separate"] = time.perf_counter() - t
-    products["diffuse"], products["specular"] = res.diffuse, res.specular
-
-    target = Path(job.target)
-    try:
-        target.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise FrameWriteError(f"cannot create the output folder: {exc.strerror}", path=target) from exc
-    ext, dtype = FORMATS[opts.format]
+    result = run_frame(frame, calibration=calibration, demosaic=parts["demosaic"], resolution=opts.resolution,
+                       stokes_products=("s0", "dolp", "aolp"), separate=True, method=method,
+                       method_options=run_options)
+    frame = result.frame
+    timings: dict[str, float] = {"read": read_seconds + result.timings["calibrate"],
+                                 **{k: v for k, v in result.timings.items() if k != "calibrate"}}
     t = time.perf_counter()
     file_meta = {"input": job.input, "method": method, "layout": str(frame.layout),
                  "fingerprint": fingerprint, "polcam_version": __version__}
-    for name in OUTPUTS:
-        arr = products[name]
-        d = ("uint16" if name in _UNIT else "float32") if dtype == "uint16" else dtype
-        if d == "uint16" and name == "specular":
-            arr = np.clip(arr, 0.0, 1.0)
-        write_image(target / f"{name}{ext}", arr, metadata={**file_meta, "product": name}, dtype=d)
+    names = write_products(job.target, {name: result.products[name] for name in OUTPUTS}, fmt=opts.format,
+                           unit=_UNIT, metadata=file_meta)
     timings["write"] = time.perf_counter() - t
-    info = {k: v for k, v in res.info.items() if k not in ("residuals",)}
+    assert result.separation is not None
+    info = {k: v for k, v in result.separation.info.items() if k not in ("residuals",)}
     meta = {
         "input": job.input,
         "input_sha256": parts["input_sha256"],
         "name": job.name,
-        "outputs": [f"{p}{ext}" for p in OUTPUTS],
+        "outputs": names,
         "layout": str(frame.layout),
         "frame": _jsonable({k: v for k, v in frame.metadata.items() if k != "path"}),
         "bit_depth": frame.bit_depth,
@@ -291,35 +348,31 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
         "method_options": _jsonable(method_options),
         "options_requested": _jsonable(asdict(opts)),
         "polcam_version": __version__,
-        "shape": list(stack.shape),
+        "shape": list(result.stack.shape),
         "timings": timings,
         "separation_info": _jsonable(info),
         "fingerprint_parts": parts,
         "fingerprint": fingerprint,
     }
-    with atomic_write(target / "meta.json", "w") as fh:
-        json.dump(meta, fh, indent=2)
+    write_meta(job.target, meta)
     return meta
 
 
 _CALIBRATIONS: dict[tuple[str, str], Any] = {}
 
 
-def _apply_calibration(frame: Any, path: str, digest: str) -> Any:
-    """Dark, flat, defects and the polarimetric correction on the mosaic (polcam.calibration).
-
-    The calibration is loaded once per process (its per-cell matrices are cached on it).
-    """
-    from polcam.calibration import apply_calibration, load_calibration
+def _calibration(path: str, digest: str) -> Any:
+    """The calibration in ``path``, loaded once per process (its per-cell matrices are cached on it)."""
+    from polcam.calibration import load_calibration
 
     key = (str(Path(path).resolve()), digest)
     if key not in _CALIBRATIONS:
         _CALIBRATIONS.clear()
         _CALIBRATIONS[key] = load_calibration(path)
-    return apply_calibration(frame, _CALIBRATIONS[key])
+    return _CALIBRATIONS[key]
 
 
-class RunRecording:
+class RunRecording:  # RERUN SINK (process --rerun): to become the shared polcam.sinks.rerun sink
     """A run as a Rerun recording (``--rerun FILE.rrd``): one time step per frame.
 
     Logged through :class:`polcam.sinks.rerun.RerunSink` (the entity paths and
@@ -350,11 +403,10 @@ _IN_POOL = False
 
 
 def _init_worker() -> None:
+    """Worker initializer: mark the process as a frame worker (its BLAS threads are limited by
+    :func:`polcam.parallel.process_pool`)."""
     global _IN_POOL
     _IN_POOL = True
-    # one BLAS/OpenMP thread per worker process: no oversubscription, thread-count-independent results
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[var] = "1"
 
 
 def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
@@ -398,10 +450,7 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
                 break
             done(process_frame(job, opts, force=force))
     else:
-        # spawn, not fork: forking a process whose libraries run threads (BLAS, OpenImageIO)
-        # can deadlock the children
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker) as pool:
+        with process_pool(workers, preload=("polcam.process",), initializer=_init_worker) as pool:
             pending: set[Future[dict[str, Any]]] = set()
             it = iter(jobs)
             exhausted = False
@@ -473,14 +522,5 @@ def write_summary(out_dir: Path, summary: dict[str, Any]) -> Path:
 
 
 def default_workers() -> int:
-    """Number of cores available to this process."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
-
-
-if __name__ == "__main__":  # pragma: no cover
-    from polcam.cli import main
-
-    sys.exit(main(["process", *sys.argv[1:]]))
+    """Worker processes used when none is asked for (:func:`polcam.parallel.default_workers`)."""
+    return parallel_default_workers()

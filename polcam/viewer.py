@@ -1,4 +1,4 @@
-"""``polcam view PATH [--web] [--port N] [--bind ADDR]``: look at recordings, batches and raw folders.
+"""Look at recordings, batches and raw folders in the Rerun viewer (``polcam view``'s library).
 
 PATH is one of
 
@@ -23,7 +23,6 @@ the server runs until Ctrl-C or SIGTERM.
 
 from __future__ import annotations
 
-import argparse
 import signal
 import subprocess
 import sys
@@ -32,7 +31,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["add_parser", "frame_folders", "kind_of", "log_path", "run", "view"]
+__all__ = ["frame_folders", "kind_of", "log_path", "view"]
 
 
 def kind_of(path: str | Path) -> str:
@@ -221,37 +220,3 @@ def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "
         finally:
             sink.close()
     return 0
-
-
-def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    """Add ``view`` to an ``argparse`` sub-parser set; returns the new parser."""
-    v = subparsers.add_parser(
-        "view", help="show an .rrd, a process output folder or a raw folder in the Rerun viewer",
-        description="Show PATH in Rerun with polcam's layout (raw, S0, DoLP, AoLP, diffuse, specular, "
-                    "statistics): an .rrd recording, a `polcam process` output folder (its layers and maps "
-                    "read from disk) or a folder of raw frames (demosaiced and separated on the fly with the "
-                    "default methods). Without --web the native viewer opens (needs a display); with --web "
-                    "Rerun's web viewer is served and its URL printed, until Ctrl-C or SIGTERM.")
-    v.add_argument("path", type=Path, help=".rrd file, process output folder or raw folder")
-    v.add_argument("--web", action="store_true", help="serve the web viewer instead of opening the native one")
-    v.add_argument("--port", type=int, default=9090,
-                   help="--web: port of the web viewer (its data use port + 1; default 9090; 0: any free port)")
-    v.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
-                   help="--web: address to listen on (default 127.0.0.1, this machine only; 0.0.0.0: "
-                        "anyone on this machine's networks can watch)")
-    v.add_argument("--memory-limit", default="1GiB",
-                   help="--web: data the server keeps for viewers that connect later (default 1GiB)")
-    v.set_defaults(func=run)
-    return v
-
-
-def run(args: argparse.Namespace) -> int:
-    """Run a parsed ``polcam view``."""
-    return view(args.path, web=args.web, port=args.port, bind=args.bind, memory_limit=args.memory_limit,
-                out=lambda text: print(text, flush=True))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    parser = argparse.ArgumentParser(prog="polcam")
-    add_parser(parser.add_subparsers(dest="command", required=True))
-    sys.exit(run(parser.parse_args(["view", *sys.argv[1:]])))

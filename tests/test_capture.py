@@ -21,14 +21,9 @@ import pytest
 from polcam import stokes as st
 from polcam.camera import AravisCamera, ReplayCamera, aravis_available
 from polcam.camera.emulator import emulator_available, gige_emulator
-from polcam.capture import (
-    FrameSaver,
-    StopRequest,
-    add_capture_parser,
-    live_maps,
-    main,
-    run_capture,
-)
+from polcam.acquisition import FrameSaver, StopRequest, run_capture
+from polcam.commands.capture import add_capture_parser, main
+from polcam.pipeline import live_maps
 from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import FrameWriteError, LayoutError, MethodError
 from polcam.frame import Frame
@@ -292,7 +287,7 @@ def test_separation_options_reach_the_live_method_and_are_checked_first(tmp_path
 
 
 def test_cli_separate_option_is_parsed_and_recorded(tmp_path):
-    from polcam.capture import main
+    from polcam.commands.capture import main
 
     folder, _ = _replay_folder(tmp_path, "synthetic_bunny5", n=2)
     out = tmp_path / "out"

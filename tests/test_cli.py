@@ -59,7 +59,9 @@ def test_stokes_on_the_fixture_and_a_bad_file(tmp_path, fixtures_dir, capsys):
     assert meta["layout"] == "imx250mzr" and meta["product"] == "dolp"
     i = [read_image(d / f"i{a:03d}.tif")[0] for a in (0, 45, 90, 135)]
     np.testing.assert_allclose(s0, (i[0] + i[1] + i[2] + i[3]) / 2, atol=1e-5)
-    assert json.loads((d / "meta.json").read_text())["demosaic"] == "bilinear"
+    from polcam.demosaicing import default_method
+
+    assert json.loads((d / "meta.json").read_text())["demosaic"] == default_method("imx250mzr")
 
 
 def test_stokes_tiff16_keeps_signed_maps_float(tmp_path, fixtures_dir):

@@ -17,7 +17,9 @@ from frames and corrects frames with them:
   pixels, and the per-super-pixel polarimetric correction on the mosaic);
   :func:`correct_stack` is the per-pixel polarimetric correction of a
   demosaiced stack;
-- ``polcam calibrate dark|flat|polarizer`` (:mod:`polcam.calibration.cli`) and
+- :mod:`polcam.calibration.frames`: calibration frames from disk or a camera
+  and their polarizer angles;
+- ``polcam calibrate dark|flat|polarizer`` (:mod:`polcam.commands.calibrate`) and
   ``python -m polcam.calibration bench`` (:mod:`polcam.calibration.bench`).
 
 A calibration refuses frames of another camera, layout, size or ROI (and a
@@ -75,14 +77,5 @@ __all__ = [
     "load_calibration",
     "measurement_rows",
     "save_calibration",
-    "add_calibrate_parser",
-    "cmd_calibrate",
 ]
 
-
-def __getattr__(name: str):  # the CLI pulls in polcam.io (OpenImageIO): load it on demand
-    if name in ("add_calibrate_parser", "cmd_calibrate"):
-        from polcam.calibration import cli
-
-        return getattr(cli, name)
-    raise AttributeError(f"module 'polcam.calibration' has no attribute {name!r}")

@@ -1,7 +1,7 @@
 """``python -m polcam.calibration bench|dark|flat|polarizer ...``.
 
 ``bench`` runs :mod:`polcam.calibration.bench`; ``dark``, ``flat`` and
-``polarizer`` are ``polcam calibrate ...`` (:mod:`polcam.calibration.cli`).
+``polarizer`` are ``polcam calibrate ...`` (:mod:`polcam.commands.calibrate`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from polcam.calibration.bench import main as bench_main
 
         return bench_main(args[1:])
-    from polcam.calibration.cli import main as cli_main
+    from polcam.commands.calibrate import main as cli_main
 
     return cli_main(args)
 

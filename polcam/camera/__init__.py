@@ -1,4 +1,4 @@
-"""Cameras: one protocol, two backends.
+"""Cameras: one protocol, a registry of backends.
 
 - :class:`~polcam.camera.base.Camera`: the protocol (context manager; open,
   configure, start/stop, read frames with timeouts, statistics).
@@ -7,7 +7,10 @@
 - :class:`~polcam.camera.replay.ReplayCamera`: ``replay:DIR``, a folder of
   raw frames played back as a camera (tests, demos, re-running a session).
 
-:func:`open_camera` picks the backend from a ``--device`` string.  Everything
+:func:`open_camera` picks the backend from a ``--device`` string through the
+backend registry (:mod:`polcam.camera.registry`: device-id prefixes, e.g.
+``replay:``, and Aravis as the default); :meth:`Camera.poll_frames` is the one
+read loop (capture and calibration use it).  Everything
 else in polcam works without Aravis; the Aravis functions raise
 :class:`~polcam.errors.CameraUnavailableError` with install instructions when
 it is missing.
@@ -23,9 +26,10 @@ from polcam.camera.base import (
     CameraNotFoundError,
     CameraSettingError,
     CapturedFrame,
+    FrameTimeout,
     StreamStats,
-    open_camera,
 )
+from polcam.camera.registry import backends, open_camera, register_backend
 from polcam.camera.replay import ReplayCamera, as_recorded
 
 __all__ = [
@@ -36,6 +40,7 @@ __all__ = [
     "CameraSettingError",
     "CapturedFrame",
     "DeviceInfo",
+    "FrameTimeout",
     "ReplayCamera",
     "StreamStats",
     "TRIGGER_MODES",
@@ -43,5 +48,7 @@ __all__ = [
     "as_recorded",
     "list_devices",
     "load_aravis",
+    "backends",
     "open_camera",
+    "register_backend",
 ]

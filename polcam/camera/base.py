@@ -15,7 +15,7 @@ Two backends implement it: :class:`polcam.camera.aravis.AravisCamera`
 :class:`polcam.camera.replay.ReplayCamera` (``replay:DIR``, a folder of raw
 frames played back as a camera).  Both deliver :class:`CapturedFrame` objects
 (a :class:`polcam.frame.Frame` with the bytes the camera sent) carrying the
-sidecar metadata of DESIGN.md section 3, and both count what did not arrive
+sidecar metadata (:data:`polcam.frame.SIDECAR_KEYS`), and both count what did not arrive
 in a :class:`StreamStats`: frames whose buffer came back incomplete (missing
 packets, size mismatch, timeout ...) are counted and never handed on as good
 frames; frames the camera produced that polcam never saw (gaps in the frame
@@ -47,10 +47,10 @@ __all__ = [
     "CameraNotFoundError",
     "CameraSettingError",
     "CapturedFrame",
+    "FrameTimeout",
     "FrameIdTracker",
     "StreamStats",
     "TRIGGER_MODES",
-    "open_camera",
 ]
 
 #: Trigger modes besides a hardware line name (``Line0``, ``Line1``, ...).
@@ -67,6 +67,10 @@ class CameraBusyError(CameraUnavailableError):
 
 class CameraSettingError(PolcamError):
     """A setting the camera refuses or does not have (names the setting and the value)."""
+
+
+class FrameTimeout(TimeoutError):
+    """No frame arrived from a started camera within the idle timeout."""
 
 
 @dataclass
@@ -335,31 +339,68 @@ class Camera(abc.ABC):
                 if remaining <= 0 or (self._finished.is_set() and self._queue.empty()):
                     return None
 
-    def frames(self, *, timeout: float = 1.0, idle_timeout: float | None = None) -> Iterator[CapturedFrame]:
-        """Good frames until the source is exhausted or acquisition stops.
+    def poll_frames(self, *, poll: float = 0.1, idle_timeout: float | None = None,
+                    software_trigger: bool = False) -> Iterator[CapturedFrame | None]:
+        """The read loop every polcam consumer uses (capture, calibration, :meth:`frames`).
+
+        Yields each good frame as it arrives, and ``None`` after every empty
+        wait of ``poll`` seconds, so the caller can check its own stop
+        conditions in between.  Returns when the source is exhausted (a
+        replay folder played out).  The camera must be started.
 
         Parameters
         ----------
-        timeout
-            Seconds of each wait (the loop checks for the end in between).
+        poll
+            Seconds of each wait for a frame.
         idle_timeout
-            Raise :class:`TimeoutError` when no frame came for this many
+            Raise :class:`FrameTimeout` when no frame came for this many
             seconds (``None``: wait for ever).
+        software_trigger
+            Fire :meth:`trigger` for each frame, one at a time (again after
+            a second without the frame).
+
+        Raises
+        ------
+        FrameTimeout
+            No frame for ``idle_timeout`` seconds.
         """
         last = time.monotonic()
+        outstanding = False
+        fired = 0.0
         while True:
-            frame = self.read(timeout)
+            now = time.monotonic()
+            if software_trigger and (not outstanding or now - fired > 1.0):
+                self.trigger()
+                outstanding, fired = True, now
+            frame = self.read(poll)
             if frame is not None:
+                outstanding = False
                 last = time.monotonic()
                 yield frame
                 continue
             if self.exhausted:
                 return
             if idle_timeout is not None and time.monotonic() - last > idle_timeout:
-                raise TimeoutError(
+                raise FrameTimeout(
                     f"camera {self.camera_id}: no frame for {idle_timeout:g} s "
-                    "(trigger not firing? see the stream statistics)"
+                    f"(trigger not firing? stream statistics: {self.stats().as_dict()})"
                 )
+            yield None
+
+    def frames(self, *, timeout: float = 1.0, idle_timeout: float | None = None) -> Iterator[CapturedFrame]:
+        """Good frames until the source is exhausted or acquisition stops (:meth:`poll_frames` without the empty polls).
+
+        Parameters
+        ----------
+        timeout
+            Seconds of each wait (the loop checks for the end in between).
+        idle_timeout
+            Raise :class:`FrameTimeout` (a :class:`TimeoutError`) when no
+            frame came for this many seconds (``None``: wait for ever).
+        """
+        for frame in self.poll_frames(poll=timeout, idle_timeout=idle_timeout):
+            if frame is not None:
+                yield frame
 
     def stats(self) -> StreamStats:
         """A snapshot of the acquisition counters."""
@@ -423,32 +464,3 @@ class Camera(abc.ABC):
                 self._queue.get_nowait()
             except queue.Empty:
                 return
-
-
-def open_camera(device: str, **options: Any) -> Camera:
-    """The camera for a ``--device`` string (not yet opened).
-
-    Parameters
-    ----------
-    device
-        ``replay:DIR`` for the file-backed camera, anything else is an Aravis
-        device id (``polcam devices`` lists them; ``Fake_1`` is Aravis'
-        simulated camera).
-    options
-        Passed to the backend's constructor (``frame_rate``/``loop`` for
-        replay; ``n_buffers``, ``packet_size``, ``socket_buffer_bytes`` for
-        Aravis; ``queue_frames`` for both).
-    """
-    dev = str(device).strip()
-    if not dev:
-        raise CameraNotFoundError(
-            "no camera id given; list the cameras with `polcam devices` "
-            "(or use replay:DIR to play a folder of raw frames)"
-        )
-    if dev.startswith("replay:"):
-        from polcam.camera.replay import ReplayCamera
-
-        return ReplayCamera(dev[len("replay:"):], **options)
-    from polcam.camera.aravis import AravisCamera
-
-    return AravisCamera(dev, **options)

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from polcam.camera.base import Camera, CameraNotFoundError, CameraSettingError, CapturedFrame
+from polcam.camera.registry import register_backend
 from polcam.errors import PixelFormatError, PolcamError
 from polcam.frame import Frame
 from polcam.mosaic import Layout, parse_layout
@@ -118,15 +119,13 @@ class ReplayCamera(Camera):
             The first frame cannot be read.
         """
         from polcam.io import RAW_EXTENSIONS, read_frame
+        from polcam.io.listing import raw_files_in
 
         if not self.folder.is_dir():
             raise CameraNotFoundError(
                 f"replay folder {str(self.folder)!r} does not exist (replay:DIR plays a folder of raw frames)"
             )
-        self.files = sorted(
-            p for p in self.folder.iterdir()
-            if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in RAW_EXTENSIONS
-        )
+        self.files = raw_files_in(self.folder)
         if not self.files:
             raise CameraNotFoundError(
                 f"replay folder {str(self.folder)!r} holds no raw frames "
@@ -335,3 +334,6 @@ class ReplayCamera(Camera):
             if not self.loop:
                 break
         self._finished.set()
+
+
+register_backend("replay:", ReplayCamera)

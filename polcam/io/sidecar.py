@@ -1,4 +1,4 @@
-"""The JSON sidecar ``<stem>.json`` beside a raw frame (DESIGN.md section 3).
+"""The JSON sidecar ``<stem>.json`` beside a raw frame.
 
 Keys (:data:`polcam.frame.SIDECAR_KEYS`), each optional and ``null`` meaning
 "not given":

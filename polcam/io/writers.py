@@ -12,12 +12,14 @@ AoLP) as OpenEXR or TIFF through OpenImageIO:
     32-bit float (default) or ``dtype="uint16"``: values in [0, 1] scaled to
     0..65535 with rounding, values outside [0, 1] clipped.  OpenImageIO's TIFF
     writer drops custom attributes, so the metadata is stored as one JSON
-    object in the ``ImageDescription`` tag.
+    object in the ``ImageDescription`` tag.  Float TIFFs are deflate-compressed
+    without the floating-point predictor, so tifffile (without imagecodecs) and
+    OpenCV read them as installed with polcam.
 
 Arrays are (H, W) or (H, W, C) with C in 1..4, floating point; channels are
 named ``Y`` (one), ``Y, A`` (two), ``R, G, B`` (three) or ``R, G, B, A``
 (four).  NaN and inf are refused.  A 2-D array is passed to OpenImageIO as
-(H, W, 1): a plain 2-D array came out transposed (DESIGN.md, section 5).
+(H, W, 1): OpenImageIO 3.2 wrote a plain 2-D uint16 array transposed.
 
 :func:`read_image` reads such a file back as float32 plus its polcam
 metadata.  :func:`write_frame` writes a raw :class:`polcam.frame.Frame`
@@ -207,6 +209,10 @@ def write_image(
     else:
         if meta:
             spec.attribute("ImageDescription", dumps_metadata(meta, path=target, indent=None))
+        if kind != "uint16":
+            # deflate without the floating-point predictor: OpenImageIO's default for float TIFFs,
+            # which tifffile cannot decode without imagecodecs (and OpenCV and PIL not at all)
+            spec.attribute("tiff:Predictor", 1)
     with atomic_path(target) as tmp:
         _write_oiio(tmp, target, pixels, spec)
     return target

@@ -25,7 +25,13 @@ for _mod in pkgutil.iter_modules(__path__):
         importlib.import_module(f"{__name__}.{_mod.name}")
 
 #: Registered separation method names.
-METHODS: tuple[str, ...] = methods()
+
+
+def __getattr__(name: str) -> tuple[str, ...]:
+    """``METHODS``: the registered method names now (:func:`methods`), so a later :func:`register` shows."""
+    if name == "METHODS":
+        return methods()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = ["METHODS", "Separation", "default_method", "input_form", "method_spec", "methods", "register",
            "separate"]

@@ -72,7 +72,7 @@ class MethodSpec:
 _METHODS: dict[str, MethodSpec] = {}
 
 # The order polcam.METHODS lists methods in (registered methods not listed here follow).
-_ORDER = ("tensor", "tensor-tau", "tensor-plain", "imin", "wen21", "tan05", "yoon06",
+_ORDER = ("polarized-residual", "tensor", "tensor-tau", "tensor-plain", "imin", "wen21", "tan05", "yoon06",
           "shen08", "shen09", "yang10", "shen13", "akashi16", "yamamoto19")
 
 

@@ -36,7 +36,7 @@ def test_missing_aravis_gives_install_instructions():
 
 
 def test_load_error_type(monkeypatch):
-    import polcam.camera.aravis as arv
+    import polcam.camera.aravis_lib as arv
 
     monkeypatch.setattr(arv, "_ARAVIS", None)
     monkeypatch.setenv("POLCAM_NO_ARAVIS", "1")

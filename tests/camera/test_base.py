@@ -12,8 +12,8 @@ from polcam.camera.base import (
     CameraNotFoundError,
     CapturedFrame,
     FrameIdTracker,
-    open_camera,
 )
+from polcam.camera.registry import open_camera
 
 
 def test_frame_id_gaps_counted():
@@ -115,3 +115,47 @@ def test_open_camera_dispatch(tmp_path):
     assert isinstance(cam, ReplayCamera) and cam.folder == tmp_path
     with pytest.raises(CameraNotFoundError, match="polcam devices"):
         open_camera("  ")
+
+
+class _Triggered(_Source):
+    """Each software trigger delivers one frame (a camera in software-trigger mode)."""
+
+    def __init__(self, *a, **k):
+        super().__init__(*a, **k)
+        self.fired = 0
+
+    def trigger(self):
+        self.fired += 1
+        self._deliver(_frame(self.fired))
+
+
+def test_poll_frames_yields_none_between_frames_and_ends_with_the_source():
+    cam = _Source("test", queue_frames=4)
+    with cam:
+        cam.start()
+        reads = cam.poll_frames(poll=0.01)
+        assert next(reads) is None                   # an empty wait: the caller checks its stop conditions
+        cam._deliver(_frame(7))
+        assert next(reads).metadata["frame_id"] == 7
+        cam._finished.set()
+        assert list(reads) == []                     # exhausted: the loop ends
+
+
+def test_poll_frames_fires_the_software_trigger_once_per_frame():
+    cam = _Triggered("test", queue_frames=4)
+    with cam:
+        cam.start()
+        reads = cam.poll_frames(poll=0.05, software_trigger=True)
+        got = [next(reads).metadata["frame_id"] for _ in range(3)]
+        assert got == [1, 2, 3] and cam.fired == 3
+
+
+def test_poll_frames_idle_timeout_names_the_camera():
+    from polcam.camera.base import FrameTimeout
+
+    cam = _Source("cam-7")
+    with cam:
+        cam.start()
+        with pytest.raises(FrameTimeout, match="camera cam-7: no frame for 0.05 s"):
+            for _ in cam.poll_frames(poll=0.02, idle_timeout=0.05):
+                pass

@@ -52,7 +52,7 @@ def test_float32_round_trip_is_exact(tmp_path: Path, ext: str, shape: tuple[int,
 
 
 def test_non_square_2d_array_is_not_transposed(tmp_path: Path) -> None:
-    # DESIGN.md: a 2-D array through ImageOutput.write_image came out transposed
+    # OpenImageIO 3.2: a 2-D array through ImageOutput.write_image came out transposed
     img = np.arange(3 * 8, dtype=np.float32).reshape(3, 8) / 24
     for ext in (".exr", ".tif"):
         back, _ = read_image(write_image(tmp_path / f"ramp{ext}", img))

@@ -215,7 +215,7 @@ def test_the_same_frame_through_capture_and_process_logs_the_same_values(tmp_pat
     from pathlib import Path
 
     from polcam.camera.replay import ReplayCamera
-    from polcam.capture import run_capture
+    from polcam.acquisition import run_capture
     from polcam.cli import main
 
     fixtures = Path(__file__).resolve().parents[2] / "fixtures" / "raw"

@@ -183,7 +183,7 @@ def test_no_seams_on_a_real_stack():
     """jcpd-15's yellow blocks, mosaicked and demosaiced: the share of the light the diffuse keeps
     jumps across the 96 x 32 tiles' borders as inside them with the default overlap (1.02; the
     input's own ratio 1.04), not with the former overlap of 2 (1.11)."""
-    from polcam.demosaic import demosaic, mosaic_stack
+    from polcam.demosaicing import demosaic, mosaic_stack
     from polcam.separation.tensor.tiling import seam_jumps
 
     full = _real_crop(whole=True)

@@ -1,0 +1,223 @@
+"""Live processing of a capture: the newest frame whenever the previous one is done.
+
+The live thread computes the polarizer-cell maps through the per-frame
+pipeline's fast route (:func:`polcam.pipeline.live_maps`: S0/2, DoLP, AoLP,
+the ``imin`` layers) from the (calibrated) mosaic; other separation methods
+run on their own thread through the pipeline's full route
+(:func:`polcam.pipeline.to_stack` at cell resolution, then
+:func:`polcam.pipeline.separate_layers`) on the newest frame whenever the
+previous run is done.  Results go to a Rerun sink (:mod:`polcam.sinks.rerun`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import TYPE_CHECKING, Any
+
+from polcam.frame import Frame
+from polcam.mosaic import Layout
+from polcam.pipeline import calibrate, live_maps, separate_layers, to_stack
+
+if TYPE_CHECKING:
+    from polcam.calibration.store import Calibration
+
+__all__ = ["Counters", "LiveProcessor"]
+
+class Counters:
+    """Numbers the capture loop shares with the live thread (for the statistics plots)."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.fps = 0.0
+        self.dropped = 0
+        self.incomplete = 0
+
+
+class LiveProcessor:
+    """Process the newest frame whenever the previous one is done.
+
+    Parameters
+    ----------
+    layout
+        Layout of the frames (the camera's delivered layout).
+    sink
+        A :class:`polcam.sinks.rerun.RerunSink`, or ``None``.
+    separate
+        Separation method for the diffuse/specular layers, or ``None``.
+        ``imin`` is computed on the live thread from the live maps (every
+        processed frame); other methods run on their own thread on the
+        polarizer-cell stack of the newest frame (``polcam.demosaic``
+        bilinear, clipped to [0, 1]) whenever the previous run is done.
+    separate_options
+        Keyword options of that method (e.g. ``{"device": "cuda"}`` for the
+        tensor method on a GPU).
+    counters
+        Shared frame rate / dropped / incomplete numbers to plot.
+    workers
+        Live threads; each takes the newest frame when it is free, so with
+        two a second frame is processed while the first one is still being
+        logged (OpenCV and Rerun release the GIL for their heavy parts).
+    calibration
+        A calibration of this camera, or ``None``.  The maps and the
+        separation are computed from the corrected mosaic
+        (:func:`polcam.calibration.apply_calibration`: dark, flat, defective
+        pixels and the per-super-pixel polarimetric correction); the raw
+        mosaic logged to ``/camera/raw`` stays as the camera sent it.
+    """
+
+    def __init__(self, layout: Layout, *, sink: Any = None, separate: str | None = None,
+                 separate_options: dict[str, Any] | None = None,
+                 counters: Counters | None = None, workers: int = 2,
+                 calibration: Calibration | None = None) -> None:
+        self.layout = layout
+        self.sink = sink
+        self.calibration = calibration
+        self.method = separate
+        self.method_options = dict(separate_options or {})
+        self.counters = counters or Counters()
+        self.processed = 0
+        self.skipped = 0
+        self.separations = 0
+        self.separations_skipped = 0
+        self.separation_errors: list[str] = []
+        self.seconds = 0.0
+        self.separation_seconds: list[float] = []
+        self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        self._pending: tuple[int, Frame] | None = None
+        self._closing = False
+        self._sep_lock = threading.Lock()
+        self._sep_wake = threading.Condition(self._sep_lock)
+        self._sep_pending: tuple[int, Frame] | None = None
+        self.error: BaseException | None = None
+        self._threads = [threading.Thread(target=self._run, name=f"live-{i}", daemon=True)
+                         for i in range(max(1, int(workers)))]
+        for t in self._threads:
+            t.start()
+        self._sep_thread: threading.Thread | None = None
+        if separate not in (None, "imin"):
+            self._sep_thread = threading.Thread(target=self._run_separation, name="separation", daemon=True)
+            self._sep_thread.start()
+
+    def offer(self, index: int, frame: Frame) -> None:
+        """Hand over the newest frame (replacing one not yet started, which counts as skipped)."""
+        with self._lock:
+            if self._pending is not None:
+                self.skipped += 1
+            self._pending = (index, frame)
+            self._wake.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._lock:
+                while self._pending is None and not self._closing:
+                    self._wake.wait()
+                if self._pending is None:
+                    return
+                index, frame = self._pending
+                self._pending = None
+            t0 = time.perf_counter()
+            try:
+                self._process(index, frame)
+            except Exception as exc:  # noqa: BLE001 - reported in the summary, capture goes on
+                with self._lock:
+                    self.error = exc
+                    self._closing = True
+                    self._pending = None
+                return
+            with self._lock:
+                self.seconds += time.perf_counter() - t0
+                self.processed += 1
+
+    def corrected(self, frame: Frame) -> Frame:
+        """The frame the live view computes from: ``frame`` itself, or its calibrated mosaic.
+
+        Raises
+        ------
+        CalibrationError
+            The frame does not fit the calibration (size, layout, camera, ROI,
+            mirroring; exposure, gain or bit depth of a dark).
+        """
+        if self.calibration is None:
+            return frame
+        from polcam.camera.replay import as_recorded
+
+        return calibrate(as_recorded(frame), self.calibration)
+
+    def _process(self, index: int, frame: Frame) -> None:
+        ts = frame.metadata.get("timestamp_ns")
+        view = self.corrected(frame)
+        maps = live_maps(view.mosaic, self.layout, black_level=view.black_level,
+                         white_level=view.white_level)
+        sink = self.sink
+        if sink is not None:  # RERUN SINK call site (capture live view)
+            sink.log_raw(index, ts, frame.mosaic, bit_depth=frame.bit_depth)  # raw is raw
+            # S0 = 2 Ic
+            sink.log_polarization(index, ts, s0=maps.ic, dolp=maps.dolp, aolp=maps.aolp, scale=2 * maps.scale)
+        if self.method == "imin":
+            with self._lock:
+                self.separations += 1
+            if sink is not None:
+                sink.log_layers(index, ts, diffuse=maps.diffuse, specular=maps.specular, scale=maps.scale)
+        elif self.method is not None:
+            with self._sep_lock:
+                if self._sep_pending is not None:  # replaced by a newer frame before it started
+                    self.separations_skipped += 1
+                self._sep_pending = (index, view)
+                self._sep_wake.notify()
+        self._stats(index, ts)
+
+    def _stats(self, index: int, ts: int | None) -> None:
+        if self.sink is None:
+            return
+        c = self.counters
+        with c.lock:
+            fps, dropped, incomplete = c.fps, c.dropped, c.incomplete
+        self.sink.log_stats(index, ts, fps=fps, dropped=dropped, incomplete=incomplete)  # RERUN SINK call site
+
+    def _run_separation(self) -> None:
+        while True:
+            with self._sep_lock:
+                while self._sep_pending is None and not self._closing:
+                    self._sep_wake.wait()
+                if self._sep_pending is None:
+                    return
+                index, frame = self._sep_pending
+                self._sep_pending = None
+            try:
+                stack = to_stack(frame, layout=self.layout, method="bilinear", resolution="cell")
+                t0 = time.perf_counter()
+                res = separate_layers(stack, method=self.method, options=self.method_options)
+                dt = time.perf_counter() - t0
+                self.separation_seconds.append(dt)
+                self.separations += 1
+                if self.sink is not None:  # RERUN SINK call site (separation layers)
+                    ts = frame.metadata.get("timestamp_ns")
+                    self.sink.log_layers(index, ts, diffuse=res.diffuse, specular=res.specular)
+                    self.sink.log_stats(index, ts, separation_seconds=dt)
+            except Exception as exc:  # noqa: BLE001 - reported, live view goes on
+                self.separation_errors.append(f"frame {index}: {exc}")
+
+    def close(self, *, finish: bool = True) -> None:
+        """Stop the live threads.
+
+        With ``finish`` the newest frame still waiting (and its separation)
+        is processed first; without it (a stop on request) it is counted as
+        skipped.  Frames being processed are always completed.
+        """
+        with self._lock:
+            if self._pending is not None and not finish:
+                self.skipped += 1
+                self._pending = None
+            self._closing = True
+            self._wake.notify_all()
+        for t in self._threads:
+            t.join()
+        if self._sep_thread is not None:
+            with self._sep_lock:
+                if self._sep_pending is not None and not finish:
+                    self.separations_skipped += 1
+                    self._sep_pending = None
+                self._sep_wake.notify_all()
+            self._sep_thread.join()

@@ -1,0 +1,413 @@
+"""The capture run: a started camera's frames to the saver and the live view, until a stop condition.
+
+Threads of a capture::
+
+    camera acquisition thread --(bounded frame queue)--> capture loop (main thread)
+        capture loop --(bounded save queue)--> saver threads: every good frame, lossless, atomic
+        capture loop --(one-slot mailbox, newest wins)--> live thread: the per-frame
+            pipeline's live route at cell resolution (S0, DoLP, AoLP, Imin), Rerun logging
+        live thread --(one-slot mailbox)--> separation thread: the chosen method on the
+            newest frame whenever the previous separation is done
+
+Nothing the capture does blocks acquisition: the camera's own thread only
+ever drops frames into its queue (a full queue drops the frame and counts
+it).  Saving is lossless for every frame the capture loop takes: when the
+disk falls behind, the save queue fills, the loop waits, the camera queue
+fills and the camera's frames are dropped and counted, so the summary always
+says what was lost.  The live view takes the newest frame whenever it is
+free; frames it did not get to are counted as skipped (they are still saved).
+
+Calibration (``run_capture(calibration=...)``): the first frame is checked
+against it (size, layout, camera, ROI, mirroring, and the exposure, gain and
+bit depth of its dark) before anything is saved, and a mismatch stops the
+capture with a ``CalibrationError``.  The live view (maps and separation) is
+computed from the corrected mosaic; the saved frames, their sidecars and the
+``/camera/raw`` view stay exactly as the camera sent them.  The summary
+records the calibration file and its SHA-256.
+
+Stopping: ``frames``, ``duration``, the end of a replay folder, or ``stop``
+(the command sets it on SIGINT / SIGTERM): acquisition stops, queued frames
+are written, the summary is returned and written.  ``abort`` (a second
+signal) abandons the frames still waiting to be written (counted as
+``unsaved``).  After SIGKILL or a power cut, complete frames are on disk and
+nothing else except hidden temporary files (``.frame_*``), which the next
+capture into that folder removes.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from polcam._hashing import sha256_file
+from polcam.acquisition.live import Counters, LiveProcessor
+from polcam.acquisition.saving import SAVE_FORMATS, FrameSaver, clean_stale, existing_frames
+from polcam.camera.base import Camera, FrameTimeout
+from polcam.errors import LayoutError, MethodError, PolcamError
+from polcam.frame import Frame
+
+if TYPE_CHECKING:
+    from polcam.calibration.store import Calibration
+
+__all__ = ["StopRequest", "run_capture"]
+
+def _check_calibration(calibration: Calibration, camera: Camera) -> tuple[str | None, str | None]:
+    """Refuse a calibration of another layout than the camera sends; (file, SHA-256) to record.
+
+    The per-cell correction matrices are built here, once, so the live view
+    does not wait for them on its first frame.
+    """
+    from polcam.calibration import CalibrationError, apply_calibration
+
+    where = f"calibration {calibration.source}" if calibration.source else "the calibration"
+    if camera.layout is not None and camera.layout != calibration.layout:
+        raise CalibrationError(f"layout mismatch: camera {camera.camera_id} sends layout {camera.layout}, "
+                               f"{where} is for {calibration.layout}")
+    if calibration.has("polarizer"):
+        apply_calibration(np.zeros(calibration.shape, dtype=np.uint16), calibration, check_settings=False)
+    if calibration.source is None:
+        return None, None
+    try:
+        digest = sha256_file(calibration.source)
+    except OSError as exc:
+        raise CalibrationError(f"cannot read the calibration file to hash it: {exc.strerror}",
+                               path=calibration.source) from exc
+    return str(calibration.source), digest
+
+
+def _refusal(calibration: Calibration, frame: Frame, camera_id: str) -> PolcamError | None:
+    """The error that stops a capture whose first frame does not fit the calibration, or ``None``."""
+    from polcam.calibration import CalibrationError
+    from polcam.camera.replay import as_recorded
+
+    try:
+        calibration.check_frame(as_recorded(frame))
+    except CalibrationError as exc:
+        return CalibrationError(f"capture from camera {camera_id} refused, nothing saved: the first frame "
+                                f"does not fit the calibration: {exc}")
+    return None
+
+
+class StopRequest(threading.Event):
+    """An event that also says why the capture should stop (``reason``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.reason = "stop requested"
+
+    def request(self, reason: str) -> None:
+        """Set the event, keeping the first reason given."""
+        if not self.is_set():
+            self.reason = reason
+        self.set()
+
+
+def run_capture(
+    camera: Camera,
+    *,
+    out: Path | None,
+    frames: int | None = None,
+    duration: float | None = None,
+    save_format: str = "raw",
+    separate: str | None = "imin",
+    separate_options: dict[str, Any] | None = None,
+    rerun: str | Path | None = None,
+    stop: threading.Event | None = None,
+    abort: threading.Event | None = None,
+    idle_timeout: float | None = 10.0,
+    software_trigger: bool = False,
+    append: bool = False,
+    save_workers: int = 4,
+    save_queue: int = 16,
+    raw_every: int = 10,
+    view_scale: float = 0.5,
+    live_workers: int = 2,
+    progress: Callable[[dict[str, Any]], None] | None = None,
+    calibration: Calibration | None = None,
+    rerun_bind: str = "127.0.0.1",
+    rerun_port: int = 9090,
+) -> dict[str, Any]:
+    """Capture from an open, configured camera until a stop condition; return the summary.
+
+    Parameters
+    ----------
+    camera
+        Open and configured (not started) camera.
+    out
+        Folder for the frames and ``summary.json`` (created); ``None``:
+        nothing is saved (live view only).
+    frames, duration
+        Stop after this many good frames / seconds (``None``: until the source
+        ends or ``stop`` is set).
+    save_format
+        One of :data:`SAVE_FORMATS`.
+    separate
+        Separation method for the live layers, or ``None``.
+    separate_options
+        Keyword options of that method, checked against it before the camera
+        starts (e.g. ``{"device": "cuda"}``); recorded in the summary.
+    rerun
+        ``"spawn"``, ``"serve"``, a ``.rrd`` path, or ``None`` (no live view).
+    stop, abort
+        Set ``stop`` to end the capture cleanly (signals do); set ``abort`` as
+        well to drop frames still waiting to be written.
+    idle_timeout
+        End with an error when no frame arrives for this many seconds.
+    software_trigger
+        Fire the camera's software trigger for each frame (one at a time).
+    append
+        Allow an ``out`` folder that already holds frames (numbering continues).
+    save_workers, save_queue
+        Writer threads and their queue length.
+    raw_every
+        Log the full-resolution raw mosaic to Rerun every this many processed frames.
+    view_scale
+        Size factor of the maps logged to Rerun (0.5: half the polarizer-cell resolution).
+    live_workers
+        Threads of the live view (each processes the newest frame when free).
+    progress
+        Called about once a second with the running counters.
+    calibration
+        A calibration of this camera (:func:`polcam.calibration.load_calibration`),
+        or ``None``.  The first frame is checked against it before anything
+        is saved; the live view (maps and separation) is computed from the
+        corrected mosaic, while the saved frames stay exactly as the camera
+        sent them.
+    rerun_bind, rerun_port
+        ``rerun="serve"``: address and port of the web viewer (the data on
+        port + 1); see :class:`polcam.sinks.rerun.WebServer`.
+
+    Returns
+    -------
+    dict
+        The summary (also written to ``out/summary.json``): ``frames_good``,
+        ``frames_incomplete``, ``frames_dropped``, ``frames_received``,
+        ``frames_saved``, ``frames_save_failed``, ``frames_unsaved``,
+        ``frames_processed``, ``frames_skipped``, ``separations``,
+        ``separations_skipped``, ``duration_s``, ``fps``, ``stop_reason``,
+        ``files``, the camera's ``stream`` statistics, and ``calibration``
+        / ``calibration_sha256`` (the calibration file and its SHA-256, as
+        ``polcam process`` records them; ``None`` without one).
+
+    Raises
+    ------
+    CalibrationError
+        The calibration does not fit the layout the camera sends, or its
+        first frame (size, layout, camera id, ROI, mirroring; with a dark,
+        exposure, gain or bit depth).  The capture stops before any frame is
+        saved and no summary is written (an output folder or ``.rrd`` file
+        it created is removed again).
+    LayoutError
+        Live processing or separation requested but the frames have no layout.
+    MethodError
+        Unknown separation method, or a colour-only one on a mono camera.
+    FrameWriteError
+        ``out`` holds frames of an earlier capture (without ``append``).
+    """
+    from polcam.errors import FrameWriteError
+
+    if save_format not in SAVE_FORMATS:
+        raise FrameWriteError(f"save format {save_format!r}: expected one of {', '.join(SAVE_FORMATS)}")
+    stop = stop or threading.Event()
+    abort = abort or threading.Event()
+    layout = camera.layout
+    live_wanted = rerun is not None or separate is not None
+    if live_wanted and layout is None:
+        raise LayoutError(
+            f"camera {camera.camera_id} sends frames without a known polarizer layout: give --layout "
+            "(imx250mzr, imx250myr, mono:A,B,C,D, color:A,B,C,D:BAYER), or --separate none without --rerun"
+        )
+    if separate_options and separate is None:
+        raise MethodError(f"separation options {sorted(separate_options)} given without a separation method")
+    if separate is not None:
+        from polcam.separation import method_spec
+        from polcam.separation._registry import check_options
+
+        if separate == "imin" and separate_options:  # computed from the live maps, not by separate()
+            raise MethodError(f"the live imin layers take no options; got {sorted(separate_options)}")
+        spec = method_spec(separate)
+        check_options(separate, dict(separate_options or {}))
+        if layout is not None and not layout.is_color and not spec.mono:
+            from polcam.separation import methods
+
+            raise MethodError(
+                f"separation method {separate!r} needs a colour sensor; camera layout is {layout}; "
+                f"for mono use one of {', '.join(m for m in methods() if method_spec(m).mono)} or none"
+            )
+    cal_file: str | None = None
+    cal_sha: str | None = None
+    if calibration is not None:
+        cal_file, cal_sha = _check_calibration(calibration, camera)
+    first_index = 0
+    stale = 0
+    created_out = False
+    if out is not None:
+        out = Path(out)
+        created_out = not out.exists()
+        out.mkdir(parents=True, exist_ok=True)
+        stale = clean_stale(out)
+        existing = existing_frames(out)
+        if existing and not append:
+            raise FrameWriteError(
+                f"output folder already holds {len(existing)} captured frame(s); choose another --out "
+                "or pass --append to continue the numbering", path=out,
+            )
+        first_index = existing[-1] + 1 if existing else 0
+
+    counters = Counters()
+    sink = None
+    new_rrd = None  # a recording file this capture creates (removed again if the calibration refuses)
+    if rerun is not None and str(rerun) not in ("spawn", "serve") and not Path(rerun).exists():
+        new_rrd = Path(rerun)
+    if rerun is not None:  # RERUN SINK created; before any thread starts: a viewer that cannot start is a plain error
+        from polcam.sinks.rerun import RerunSink
+
+        sink = RerunSink(rerun, raw_every=raw_every, view_scale=view_scale, bind=rerun_bind, port=rerun_port)
+        if sink.server is not None and progress is not None:
+            progress({"message": sink.server.message()})
+    saver: FrameSaver | None = None
+    if out is not None:
+        saver = FrameSaver(out, SAVE_FORMATS[save_format], workers=save_workers, queue_frames=save_queue)
+    live: LiveProcessor | None = None
+    if live_wanted:
+        assert layout is not None
+        live = LiveProcessor(layout, sink=sink, separate=separate, separate_options=separate_options,
+                             counters=counters, workers=live_workers,
+                             calibration=calibration)
+
+    received = 0
+    refused: PolcamError | None = None
+    reason = "running"
+    error: str | None = None
+    arrivals: deque[float] = deque()
+    t_start = time.monotonic()
+    last_progress = t_start
+    reads = None
+    try:
+        camera.start()
+        t_start = last_progress = time.monotonic()
+        reads = camera.poll_frames(poll=0.1, idle_timeout=idle_timeout, software_trigger=software_trigger)
+        while True:
+            now = time.monotonic()
+            if stop.is_set():
+                reason = getattr(stop, "reason", "stop requested")
+                break
+            if frames is not None and received >= frames:
+                reason = "frames"
+                break
+            if duration is not None and now - t_start >= duration:
+                reason = "duration"
+                break
+            try:
+                frame = next(reads)
+            except StopIteration:
+                reason = "end of stream"
+                break
+            except FrameTimeout as exc:
+                reason = "timeout"
+                error = str(exc)
+                break
+            now = time.monotonic()
+            if frame is not None:
+                if calibration is not None and received == 0:
+                    refused = _refusal(calibration, frame, camera.camera_id)
+                    if refused is not None:  # nothing saved or shown yet
+                        reason = "calibration refused"
+                        break
+                index = first_index + received
+                received += 1
+                arrivals.append(now)
+                while arrivals and now - arrivals[0] > 1.0:
+                    arrivals.popleft()
+                if saver is not None and not saver.put(index, frame, abort=abort):
+                    pass  # aborted: counted as unsaved by the saver
+                if live is not None:
+                    live.offer(index, frame)
+            if now - last_progress >= 0.5:
+                st = camera.stats()
+                with counters.lock:
+                    counters.fps = float(len(arrivals))
+                    counters.dropped = st.dropped
+                    counters.incomplete = st.incomplete
+                if progress is not None and now - last_progress >= 1.0:
+                    progress({"received": received, "fps": counters.fps, "dropped": st.dropped,
+                              "incomplete": st.incomplete,
+                              "saved": len(saver.saved) if saver else 0,
+                              "processed": live.processed if live else 0})
+                last_progress = now
+    finally:
+        t_end = time.monotonic()
+        if reads is not None:
+            reads.close()
+        camera.stop()
+        if live is not None:
+            live.close(finish=not stop.is_set())
+        if saver is not None:
+            saver.close(abort=abort.is_set())
+        if sink is not None:
+            sink.close()
+
+    if refused is not None:
+        for leftover, remove in ((out if created_out else None, Path.rmdir), (new_rrd, Path.unlink)):
+            if leftover is not None:
+                try:
+                    remove(leftover)  # the folder is empty, the recording holds no frame
+                except OSError:
+                    pass
+        raise refused
+    st = camera.stats()
+    elapsed = max(t_end - t_start, 1e-9)
+    if live is not None and live.error is not None:
+        error = f"live processing failed: {live.error}"
+    summary: dict[str, Any] = {
+        "camera": camera.info,
+        "stop_reason": reason,
+        "error": error,
+        "frames_good": st.good,
+        "frames_incomplete": st.incomplete,
+        "frames_dropped": st.dropped,
+        "frames_received": received,
+        "frames_saved": len(saver.saved) if saver else 0,
+        "frames_save_failed": len(saver.failed) if saver else 0,
+        "frames_unsaved": saver.unsaved if saver else 0,
+        "frames_processed": live.processed if live else 0,
+        "frames_skipped": live.skipped if live else 0,
+        "separation": separate,
+        "separation_options": dict(separate_options or {}),
+        "separations": live.separations if live else 0,
+        "separations_skipped": live.separations_skipped if live else 0,
+        "separation_seconds_mean": (float(np.mean(live.separation_seconds))
+                                    if live and live.separation_seconds else None),
+        "separation_errors": live.separation_errors if live else [],
+        "duration_s": elapsed,
+        "fps": received / elapsed,
+        "fps_processed": (live.processed / elapsed) if live else 0.0,
+        "live_seconds_per_frame": (live.seconds / live.processed) if live and live.processed else None,
+        "save_seconds_per_frame": (saver.seconds / len(saver.saved)) if saver and saver.saved else None,
+        "by_status": st.by_status,
+        "queue_overflow": st.queue_overflow,
+        "stream": st.stream,
+        "format": save_format if saver else None,
+        "out": None if out is None else str(out),
+        "rerun": None if rerun is None else str(rerun),
+        "stale_temporaries_removed": stale,
+        "calibration": cal_file,
+        "calibration_sha256": cal_sha,
+        "calibration_stages": calibration.applied_stages if calibration is not None else None,
+        "save_errors": saver.failed if saver else [],
+        "files": sorted(saver.saved) if saver else [],
+    }
+    if out is not None:
+        from polcam.io.atomic import atomic_write
+
+        with atomic_write(Path(out) / "summary.json", "w") as fh:
+            json.dump(summary, fh, indent=2, default=str)
+            fh.write("\n")
+    return summary

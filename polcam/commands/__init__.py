@@ -1,0 +1,90 @@
+"""The ``polcam`` command line: one module per command, on top of the library.
+
+Each module adds its parser (``add_parser``) and runs its command
+(``cmd_<name>``); :mod:`polcam.commands._args` holds what they share (option
+parsing, the camera arguments, exit statuses).  Nothing in the library
+imports this package; the entry points ``polcam`` (:func:`main`),
+``python -m polcam``, ``python -m polcam.capture`` and
+``python -m polcam.calibration`` are thin shims onto it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from polcam import __version__
+from polcam.commands._args import run_command
+
+__all__ = ["build_parser", "main", "reference_markdown", "run_command"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``polcam`` parser with every command."""
+    from polcam import DEMOSAIC_METHODS
+    from polcam.commands import (
+        bench,
+        calibrate,
+        capture,
+        demo,
+        devices,
+        formats,
+        process,
+        render,
+        stokes,
+        view,
+    )
+
+    p = argparse.ArgumentParser(
+        prog="polcam",
+        description="Polarization cameras: raw frames to polarization stacks, Stokes maps and "
+                    "diffuse/specular layers.",
+    )
+    p.add_argument("--version", action="version", version=f"polcam {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    stokes.add_parser(sub, DEMOSAIC_METHODS)
+    process.add_parser(sub, DEMOSAIC_METHODS)
+    capture.add_capture_parser(sub)
+    view.add_parser(sub)
+    calibrate.add_calibrate_parser(sub)
+    demo.add_parser(sub, DEMOSAIC_METHODS)
+    devices.add_parser(sub)
+    formats.add_parser(sub)
+    render.add_parser(sub)
+    bench.add_parser(sub)
+    return p
+
+
+def reference_markdown() -> str:
+    """docs/cli.md: every command's --help, rendered at 100 columns."""
+    import os
+
+    old = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "100"
+    try:
+        parser = build_parser()
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parts = ["# polcam command line", "",
+                 "Generated from the parsers (`python -m polcam.cli --markdown > docs/cli.md`); "
+                 "`polcam COMMAND --help` prints the same.", "", "```", parser.format_help().rstrip(), "```"]
+        for name, cmd in sub.choices.items():
+            parts += ["", f"## polcam {name}", "", "```", cmd.format_help().rstrip(), "```"]
+            nested = [a for a in cmd._actions if isinstance(a, argparse._SubParsersAction)]
+            for sub_name, sub_cmd in (nested[0].choices.items() if nested else ()):
+                parts += ["", f"### polcam {name} {sub_name}", "", "```", sub_cmd.format_help().rstrip(), "```"]
+        return "\n".join(parts) + "\n"
+    finally:
+        if old is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = old
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``polcam`` and ``python -m polcam``."""
+    return run_command(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

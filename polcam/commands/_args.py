@@ -1,0 +1,173 @@
+"""What the commands share: option parsing, camera arguments, running a command with exit statuses.
+
+Exit statuses of every command (:func:`run_command`): 0 done; 1 some frames
+failed (each reported); 2 bad input or options (a :class:`PolcamError`, its
+message on stderr; nothing done); 3 camera unavailable; 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from polcam.camera.base import TRIGGER_MODES, Camera, CameraSettingError
+from polcam.errors import CameraUnavailableError, PolcamError
+
+__all__ = [
+    "CAMERA_SETTINGS",
+    "add_max_pixels_argument",
+    "default_methods_text",
+    "add_camera_arguments",
+    "camera_options",
+    "configure_camera",
+    "parse_option",
+    "parse_options",
+    "run_command",
+]
+
+
+def parse_option(text: str, *, flag: str = "--option") -> tuple[str, Any]:
+    """``KEY=VALUE`` of a method-option flag: VALUE as JSON, else the string itself."""
+    if "=" not in text:
+        raise PolcamError(f"{flag} {text!r}: expected KEY=VALUE (VALUE as JSON, e.g. max_iter=50)")
+    key, value = text.split("=", 1)
+    try:
+        return key.strip(), json.loads(value)
+    except ValueError:
+        return key.strip(), value
+
+
+def add_max_pixels_argument(parser: Any) -> None:
+    """``--max-pixels N``: the largest frame a command reads (a larger declared size is refused unread)."""
+    parser.add_argument("--max-pixels", type=int, metavar="N",
+                        help="largest frame to read, pixels (default 134217728 = 2^27); a file whose header "
+                             "or sidecar declares more is refused before it is read")
+
+
+def default_methods_text() -> str:
+    """``"tensor for colour, imin for mono"``: the registry's default separation per frame kind."""
+    from polcam.separation import default_method
+
+    return f"{default_method('stack')} for colour, {default_method('mono-stack')} for mono"
+
+
+def parse_options(texts: list[str] | None, *, flag: str = "--option") -> dict[str, Any]:
+    """Every ``KEY=VALUE`` of a repeatable method-option flag as a dict (:func:`parse_option`)."""
+    return dict(parse_option(t, flag=flag) for t in texts or [])
+
+
+def run_command(args: argparse.Namespace) -> int:
+    """Run a parsed command (its ``func``) and map errors to exit statuses.
+
+    0 or the command's own status; 3 when a camera is unavailable (Aravis
+    missing, no such camera, busy); 2 for any other :class:`PolcamError`
+    (the message on stderr); 130 when interrupted.  The standalone entry
+    points (``python -m polcam.capture``, ``python -m polcam.calibration``)
+    use it too.
+    """
+    try:
+        return int(args.func(args) or 0)
+    except CameraUnavailableError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 3
+    except PolcamError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+def add_camera_arguments(parser: Any, *, layout: bool = True) -> None:
+    """Add the camera options ``polcam capture`` and ``polcam calibrate --device`` share.
+
+    Settings (``--pixel-format``, ``--layout``, ``--exposure``, ``--gain``,
+    ``--roi``, ``--frame-rate``, ``--trigger``, ``--reverse-x``,
+    ``--reverse-y``) and the connection (``--timeout``, ``--loop``,
+    ``--buffers``, ``--packet-size``, ``--socket-buffer``); read them back
+    with :func:`camera_options` and :func:`configure_camera`.
+
+    Parameters
+    ----------
+    parser
+        The command's ``argparse.ArgumentParser``, or an argument group of it.
+    layout
+        Add ``--layout`` too (a command that has its own leaves it out).
+    """
+    p = parser
+    p.add_argument("--pixel-format", help="GenICam PixelFormat (`polcam formats` lists what polcam reads)")
+    if layout:
+        p.add_argument("--layout", help="sensor layout for plain Mono/Bayer formats (imx250mzr, imx250myr, "
+                                        "mono:A,B,C,D, color:A,B,C,D:BAYER)")
+    p.add_argument("--exposure", type=float, metavar="US", help="exposure time, microseconds")
+    p.add_argument("--gain", type=float, metavar="DB", help="gain, dB")
+    p.add_argument("--roi", type=int, nargs=4, metavar=("X", "Y", "W", "H"),
+                   help="region of interest on the sensor (aligned down to whole polarizer cells)")
+    p.add_argument("--frame-rate", type=float, metavar="FPS",
+                   help="frame rate (replay: playback rate; default as fast as read, lossless)")
+    p.add_argument("--trigger", help=f"{' | '.join(TRIGGER_MODES)} | a line (Line0, ...); default: "
+                                     "as the camera is")
+    p.add_argument("--reverse-x", action="store_true", default=None, help="mirror the image left-right")
+    p.add_argument("--reverse-y", action="store_true", default=None, help="mirror the image top-bottom")
+    p.add_argument("--timeout", type=float, default=10.0,
+                   help="give up when no frame arrives for S seconds (default 10)")
+    p.add_argument("--loop", action="store_true", help="replay: start over after the last file")
+    p.add_argument("--buffers", type=int, default=16, help="Aravis buffer pool size (default 16)")
+    p.add_argument("--packet-size", default="1500",
+                   help="GigE packet size in bytes (default 1500; 8192/9000 with jumbo frames end to end; "
+                        "'auto': Aravis probes the largest size the path carries)")
+    p.add_argument("--socket-buffer", type=int, metavar="BYTES",
+                   help="GigE receive socket buffer (default: Aravis' automatic size)")
+
+
+#: Destinations of the camera settings :func:`add_camera_arguments` adds, with their flags.
+CAMERA_SETTINGS: dict[str, str] = {
+    "pixel_format": "--pixel-format", "exposure": "--exposure", "gain": "--gain", "roi": "--roi",
+    "frame_rate": "--frame-rate", "trigger": "--trigger", "reverse_x": "--reverse-x", "reverse_y": "--reverse-y",
+}
+
+
+def camera_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Keyword arguments of :func:`polcam.camera.open_camera` from the parsed camera options.
+
+    Raises
+    ------
+    CameraSettingError
+        A ``--packet-size`` that is neither a number nor ``auto``.
+    """
+    if str(args.device).startswith("replay:"):
+        return {"frame_rate": args.frame_rate, "loop": args.loop}
+    opts: dict[str, Any] = {"n_buffers": args.buffers}
+    if args.packet_size is not None:
+        size = str(args.packet_size).strip().lower()
+        if size != "auto" and not size.isdigit():
+            raise CameraSettingError(f"--packet-size {args.packet_size!r}: expected a number of bytes or 'auto'")
+        opts["packet_size"] = "auto" if size == "auto" else int(size)
+    if args.socket_buffer is not None:
+        opts["socket_buffer_bytes"] = args.socket_buffer
+    return opts
+
+
+def configure_camera(camera: Camera, args: argparse.Namespace, *, quiet: bool = False) -> dict[str, Any]:
+    """Apply the parsed camera settings to an open camera; returns what it reports.
+
+    Settings the camera cannot change are listed in the result's ``ignored``
+    and, unless ``quiet``, named in a note on stderr.
+
+    Raises
+    ------
+    CameraSettingError, PixelFormatError, LayoutError
+        A setting the camera refuses (the message names it and the value).
+    """
+    settings = camera.configure(
+        pixel_format=args.pixel_format, layout=args.layout, exposure_us=args.exposure,
+        gain_db=args.gain, roi=tuple(args.roi) if args.roi else None,
+        frame_rate=args.frame_rate if not str(args.device).startswith("replay:") else None,
+        trigger=args.trigger, reverse_x=args.reverse_x, reverse_y=args.reverse_y,
+    )
+    if settings.get("ignored") and not quiet:
+        print(f"note: camera {camera.camera_id} cannot change {', '.join(settings['ignored'])}; ignored",
+              file=sys.stderr)
+    return settings

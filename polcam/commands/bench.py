@@ -1,0 +1,110 @@
+"""``polcam bench``: the benchmarks behind docs/benchmarks.md (:mod:`polcam.bench`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+__all__ = ["add_parser", "cmd_bench"]
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    if args.bench == "demosaic":
+        from polcam.bench import demosaic as bench
+
+        rows = bench.run(data_dir=args.data, size=args.size, seed=args.seed)
+        print(bench.format_markdown(rows))
+        return 0
+    if args.bench == "quality":
+        from polcam.bench import quality
+
+        scenes = args.scenes or quality.scene_set(args.set)
+        scores, stats = quality.run(scenes=scenes, methods=args.methods, size=args.size,
+                                    seed=args.seed, mono=args.mono)
+        print(quality.format_object_psnr(scores))
+        for f in quality.write_outputs(scores, stats, args.out or Path("bench-output") / "quality"):
+            print(f"wrote {f}")
+        return 0
+    if args.bench == "sihr":
+        from polcam.bench import sihr
+
+        if not args.data.is_dir():
+            print(f"error: --data {args.data}: not a folder (expected the shen2013 images and their *_gt.png)",
+                  file=sys.stderr)
+            return 2
+        rows = sihr.run(args.data, methods=args.methods)
+        print(sihr.format_table(rows))
+        return 0
+    if args.bench == "speed":
+        from polcam.bench import speed
+
+        return speed.run_args(args)
+    if args.bench == "real":
+        from polcam.bench import real
+
+        return real.run_args(args)
+    if args.bench == "calibration":
+        from polcam.calibration import bench as cal_bench
+
+        return cal_bench.run_args(args)
+    raise AssertionError(args.bench)
+
+
+def add_parser(sub: Any) -> argparse.ArgumentParser:
+    """Add ``bench`` and its benchmarks to the sub-parsers."""
+    b = sub.add_parser("bench", help="benchmarks (demosaic, sihr, quality, speed, calibration, real)",
+                       description="Benchmarks that reproduce the tables of docs/benchmarks.md. demosaic: "
+                                   "demosaicing quality and speed against ground truth, beside polanalyser. "
+                                   "sihr: the single-image highlight-removal methods on the Shen 2013 images "
+                                   "against the published PSNR/SSIM table. quality: every separation method on "
+                                   "the synthetic scenes. speed: the tensor method's exact and fast solvers. "
+                                   "calibration: dark, flat and polarizer calibration on a synthetic imperfect "
+                                   "sensor. real: every colour method on real colour-polarization stacks, "
+                                   "judged by physics.")
+    bsub = b.add_subparsers(dest="bench", required=True, metavar="BENCH")
+    bd = bsub.add_parser("demosaic", help="demosaicing quality and speed",
+                         description="Demosaicing quality (PSNR of I, S0, DoLP; AoLP error) and speed against "
+                                     "ground truth on synthetic scenes and a real colour stack, beside "
+                                     "polanalyser.")
+    bd.add_argument("--data", type=Path, help="a real colour stack folder (0_1.png .. 135_1.png)")
+    bd.add_argument("--size", type=int, help="size of the synthetic scenes")
+    bd.add_argument("--seed", type=int, default=0, help="random seed of the synthetic scenes (default 0)")
+    bs = bsub.add_parser("sihr", help="single-image highlight removal on the Shen 2013 images",
+                         description="PSNR/SSIM and seconds of the single-image methods on the Shen 2013 "
+                                     "images, beside the published table.")
+    bs.add_argument("--data", type=Path, required=True, help="the shen2013 folder (images and *_gt.png)")
+    bs.add_argument("--methods", nargs="+", help="only these methods")
+    bq = bsub.add_parser("quality", help="every separation method on the synthetic scenes",
+                         description="Every separation method on the synthetic scenes (PSNR, SSIM, whole image "
+                                     "and object mask; CSV, Markdown, plot), beside the paper's tables.")
+    bq.add_argument("--methods", nargs="+", help="only these methods")
+    bq.add_argument("--scenes", nargs="+", help="only these scenes (default: those of --set)")
+    bq.add_argument("--set", choices=("paper", "stress", "all"), default="paper",
+                    help="scene set: the paper's, polcam's stress scenes, or both (default paper)")
+    bq.add_argument("--mono", action="store_true",
+                    help="score the scenes' luminance with the methods that take mono stacks")
+    bq.add_argument("--size", type=int, default=128, help="scene side in pixels (default 128)")
+    bq.add_argument("--seed", type=int, default=0, help="random seed of the scenes (default 0)")
+    bq.add_argument("--out", type=Path, help="output folder (default bench-output/quality)")
+    from polcam.bench import speed as _speed
+    from polcam.calibration import bench as _cal_bench
+
+    bp = bsub.add_parser("speed", help="the tensor method's exact and fast solvers",
+                         description="The tensor method's exact and fast solvers on the same inputs: seconds, "
+                                     "speed ratio, PSNR difference, iterations and peak memory on synthetic "
+                                     "scenes, and the fast solver on a full 2448 x 2048 sensor frame from raw "
+                                     "to diffuse and specular (docs/benchmarks.md). Each case runs in a fresh "
+                                     "process.")
+    _speed.add_arguments(bp)
+    bc = bsub.add_parser("calibration", help="calibration on a synthetic imperfect sensor",
+                         description="Dark, flat and polarizer calibration of a synthetic imperfect sensor: "
+                                     "recovered maps, Stokes errors before and after, separation with and "
+                                     "without calibration (docs/benchmarks.md).")
+    _cal_bench.add_arguments(bc)
+    from polcam.bench import real as _real
+
+    _real.add_parser(bsub)
+    b.set_defaults(func=cmd_bench)
+    return b

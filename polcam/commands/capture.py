@@ -1,0 +1,166 @@
+"""``polcam capture``: record a camera (or ``replay:DIR``) losslessly with a live Rerun view.
+
+The command line of :mod:`polcam.acquisition`: open and configure the camera
+(:mod:`polcam.commands._args`), turn SIGINT / SIGTERM into a clean stop (a
+second signal abandons the frames still queued for writing), run
+:func:`polcam.acquisition.run_capture`, print the summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from polcam.acquisition import SAVE_FORMATS, StopRequest, run_capture
+from polcam.camera import open_camera
+from polcam.camera.base import CameraSettingError
+from polcam.commands._args import add_camera_arguments, camera_options, configure_camera, parse_options
+
+__all__ = ["add_capture_parser", "cmd_capture", "main"]
+
+
+def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add ``capture`` to an ``argparse`` sub-parser set; returns the new parser."""
+    c = subparsers.add_parser(
+        "capture",
+        help="record a camera (or replay:DIR) losslessly with a live Rerun view",
+        description="Capture raw frames from a GenICam camera through Aravis (`polcam devices` lists "
+                    "them; Fake_1 is Aravis' simulated camera) or from a folder of raw frames "
+                    "(--device replay:DIR). Every good frame is saved losslessly with its JSON sidecar, "
+                    "atomically; the newest frame is processed live (S0, DoLP, AoLP, Imin at the "
+                    "polarizer-cell resolution, and the chosen separation) and shown in Rerun; with "
+                    "--calibration the live view is computed from the corrected mosaic while the saved "
+                    "frames stay raw. Ctrl-C or SIGTERM stops cleanly and writes OUT/summary.json.",
+    )
+    c.add_argument("--device", required=True, help="camera id, serial or address, or replay:DIR")
+    stop = c.add_mutually_exclusive_group()
+    stop.add_argument("--frames", type=int, help="stop after N good frames")
+    stop.add_argument("--duration", type=float, help="stop after S seconds")
+    c.add_argument("--out", type=Path, help="output folder (default captures/<date-time>)")
+    c.add_argument("--no-save", action="store_true", help="live view only: save nothing")
+    c.add_argument("--format", default="raw", choices=tuple(SAVE_FORMATS),
+                   help="frame files: raw (the camera's bytes, default), tiff (uncompressed), npy, "
+                        "png (lossless, slow: ~90 ms a 5 MP frame)")
+    c.add_argument("--append", action="store_true", help="allow an --out folder that holds frames already")
+    add_camera_arguments(c)
+    c.add_argument("--calibration", type=Path, metavar="FILE",
+                   help="calibration file (polcam calibrate) of this camera at these settings: the first "
+                        "frame is checked against it, the live view (S0, DoLP, AoLP, layers) uses the "
+                        "corrected mosaic; saved frames stay raw. summary.json records the file and its SHA-256")
+    c.add_argument("--separate", default="imin",
+                   help="separation method for the live layers, or none (default imin: every frame; "
+                        "slower methods run on the newest frame whenever the last run is done)")
+    c.add_argument("--separate-option", action="append", metavar="KEY=VALUE",
+                   help="an option of the --separate method, VALUE as JSON (repeatable), e.g. "
+                        "--separate-option device=cuda for the tensor method on a GPU")
+    c.add_argument("--rerun", help="live view: spawn (a viewer; needs a display), serve (web viewer), "
+                                   "or FILE.rrd")
+    c.add_argument("--port", type=int, default=9090,
+                   help="--rerun serve: port of the web viewer (its data use port + 1; default 9090)")
+    c.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                   help="--rerun serve: address to listen on (default 127.0.0.1, this machine only; "
+                        "0.0.0.0: anyone on this machine's networks can watch)")
+    c.add_argument("--raw-every", type=int, default=10,
+                   help="log the full-resolution raw mosaic to Rerun every N processed frames (default 10)")
+    c.add_argument("--view-scale", type=float, default=0.5,
+                   help="size of the maps in the Rerun view relative to the polarizer-cell resolution "
+                        "(default 0.5: 612x512 for a 5 MP sensor; 1 for full cell resolution)")
+    c.add_argument("--live-workers", type=int, default=2, help="live processing threads (default 2)")
+    c.add_argument("--save-workers", type=int, default=4,
+                   help="writer threads (default 4: writes and fsync overlap)")
+    c.add_argument("--quiet", action="store_true", help="no progress lines")
+    c.set_defaults(func=cmd_capture)
+    return c
+
+
+def _print_summary(summary: dict[str, Any]) -> None:
+    keys = ("frames_good", "frames_incomplete", "frames_dropped", "frames_saved", "frames_processed",
+            "frames_skipped", "separations")
+    line = ", ".join(f"{k[7:] if k.startswith('frames_') else k} {summary[k]}" for k in keys)
+    print(f"capture stopped ({summary['stop_reason']}) after {summary['duration_s']:.1f} s: {line}; "
+          f"{summary['fps']:.1f} fps received, {summary['fps_processed']:.1f} fps processed")
+    if summary.get("out"):
+        print(f"frames and summary.json in {summary['out']}")
+    if summary.get("error"):
+        print(f"error: {summary['error']}", file=sys.stderr)
+
+
+def cmd_capture(args: argparse.Namespace) -> int:
+    """``polcam capture``: open, configure, capture, summarise.  Returns the exit status."""
+    if args.frames is not None and args.frames <= 0:
+        raise CameraSettingError(f"--frames {args.frames}: expected a positive number")
+    if args.duration is not None and args.duration <= 0:
+        raise CameraSettingError(f"--duration {args.duration}: expected a positive number of seconds")
+    separate = None if str(args.separate).lower() == "none" else args.separate
+    separate_options = parse_options(args.separate_option, flag="--separate-option")
+    out: Path | None = None
+    if not args.no_save:
+        out = args.out or Path("captures") / time.strftime("%Y%m%d-%H%M%S")
+    trigger = args.trigger
+    stop = StopRequest()
+    abort = threading.Event()
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        if stop.is_set():
+            abort.set()  # a second signal: do not wait for the frames still queued for writing
+        stop.request(f"signal {signal.Signals(signum).name}")
+
+    calibration = None
+    if args.calibration is not None:  # loaded once, before the camera is touched
+        from polcam.calibration import load_calibration
+
+        calibration = load_calibration(args.calibration)
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with open_camera(args.device, **camera_options(args)) as cam:
+            settings = configure_camera(cam, args, quiet=args.quiet)
+            if not args.quiet:
+                fmt = settings.get("pixel_format") or "pixel format of the files"
+                lay = settings.get("layout") or "unknown (give --layout for the live view)"
+                print(f"capturing from {cam.camera_id}: {fmt}, layout {lay} -> {out if out else '(not saved)'}")
+                if calibration is not None:
+                    print(f"live view calibrated with {args.calibration} "
+                          f"({', '.join(calibration.applied_stages) or 'no stages'}); frames saved raw")
+
+            def progress(p: dict[str, Any]) -> None:
+                if "message" in p:
+                    print(p["message"], file=sys.stderr)
+                    return
+                print(f"  {p['received']} frames, {p['fps']:.0f} fps, saved {p['saved']}, "
+                      f"processed {p['processed']}, dropped {p['dropped']}, incomplete {p['incomplete']}",
+                      file=sys.stderr)
+
+            summary = run_capture(
+                cam, out=out, frames=args.frames, duration=args.duration, save_format=args.format,
+                separate=separate, separate_options=separate_options, rerun=args.rerun, stop=stop,
+                abort=abort, idle_timeout=args.timeout,
+                software_trigger=trigger == "software", append=args.append,
+                save_workers=args.save_workers, raw_every=args.raw_every, view_scale=args.view_scale,
+                live_workers=args.live_workers,
+                progress=None if args.quiet else progress, calibration=calibration,
+                rerun_bind=args.bind, rerun_port=args.port,
+            )
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+    _print_summary(summary)
+    if summary["error"] or summary["frames_save_failed"]:
+        return 1
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m polcam.capture ...``: the capture command on its own."""
+    parser = argparse.ArgumentParser(prog="polcam")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_capture_parser(sub)
+    args = parser.parse_args(["capture", *(sys.argv[1:] if argv is None else argv)])
+    from polcam.commands._args import run_command
+
+    return run_command(args)

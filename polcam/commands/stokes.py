@@ -1,0 +1,114 @@
+"""``polcam stokes``: demosaic raw frames and write the stack, S0-S2, DoLP, AoLP and the fit residual."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from polcam import __version__
+from polcam.commands._args import add_max_pixels_argument
+from polcam.errors import PolcamError
+from polcam.sinks.files import FORMATS
+
+__all__ = ["add_parser", "cmd_stokes", "run_stokes"]
+
+#: Products of ``polcam stokes`` whose values lie in [0, 1] (uint16 with ``--format tiff16``).
+UNIT_RANGE = ("i000", "i045", "i090", "i135", "dolp")
+
+
+def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, method: str | None,
+               resolution: str, fmt: str, quiet: bool = False,
+               max_pixels: int | None = None) -> dict[str, Any]:
+    """Every frame of ``files`` through the pipeline's Stokes products into ``out_dir/<stem>/``.
+
+    Returns the summary written to ``out_dir/summary.json`` (``done``,
+    ``failed``: input and error of each bad frame, ``frames``: each frame's meta).
+    """
+    from polcam.io import read_frame
+    from polcam.io.atomic import atomic_write
+    from polcam.pipeline import PRODUCTS, default_demosaic, require_layout, run_frame
+    from polcam.sinks.files import write_meta, write_products
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done: list[dict[str, Any]] = []
+    failed: list[dict[str, str]] = []
+    for path in files:
+        t0 = time.perf_counter()
+        try:
+            frame = require_layout(read_frame(path, layout=layout, max_pixels=max_pixels), str(path))
+            result = run_frame(frame, demosaic=method, resolution=resolution, stokes_products=PRODUCTS)
+            target = out_dir / path.stem
+            meta = {"input": str(path), "layout": str(frame.layout),
+                    "demosaic": method or default_demosaic(frame.layout),
+                    "resolution": resolution, "polcam_version": __version__,
+                    "bit_depth": frame.bit_depth, "black_level": frame.black_level,
+                    "white_level": frame.white_level}
+            write_products(target, result.products, fmt=fmt, unit=UNIT_RANGE, metadata=meta)
+            seconds = time.perf_counter() - t0
+            meta["seconds"] = seconds
+            meta["shape"] = list(result.stack.shape)
+            write_meta(target, meta)
+            done.append(meta)
+            if not quiet:
+                d = result.products["dolp"]
+                print(f"{path.name}: {frame.layout} {result.stack.shape} -> {target}  "
+                      f"mean DoLP {float(np.mean(d)):.3f}  {seconds:.2f} s")
+        except (PolcamError, OSError) as exc:
+            failed.append({"input": str(path), "error": str(exc)})
+            print(f"error: {exc}", file=sys.stderr)
+    summary = {"done": len(done), "failed": failed, "frames": done}
+    with atomic_write(out_dir / "summary.json", "w") as fh:
+        json.dump(summary, fh, indent=2)
+    return summary
+
+
+def cmd_stokes(args: argparse.Namespace) -> int:
+    """Run ``polcam stokes``; returns the exit status."""
+    from polcam.commands._checks import check_run_options
+    from polcam.io.listing import list_raw_files
+
+    files = list_raw_files(args.inputs, recursive=args.recursive)
+    if not files:
+        print(f"error: no raw frames found in {', '.join(map(str, args.inputs))}", file=sys.stderr)
+        return 2
+    check_run_options(layout=args.layout, demosaic=args.demosaic, resolution=args.resolution,
+                      fmt=args.format)
+    summary = run_stokes(files, args.out, layout=args.layout, method=args.demosaic,
+                         resolution=args.resolution, fmt=args.format, quiet=args.quiet,
+                         max_pixels=args.max_pixels)
+    print(f"{summary['done']} frame(s) written to {args.out}, {len(summary['failed'])} failed")
+    return 1 if summary["failed"] else 0
+
+
+def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentParser:
+    """Add ``stokes`` to the sub-parsers."""
+    s = sub.add_parser("stokes", help="demosaic raw frames and write the stack, S0-S2, DoLP, AoLP",
+                       description="Read raw polarization mosaics (png/tif/pgm/bmp/raw/npy/dng), "
+                                   "demosaic them and write, per frame, OUT/<stem>/ with i000..i135 "
+                                   "(the four angle images), s0, s1, s2, dolp (0..1), aolp (radians in "
+                                   "[0, pi) from the image x axis), residual ((I0+I90)-(I45+I135)) and "
+                                   "meta.json; OUT/summary.json lists done and failed frames.")
+    s.add_argument("inputs", nargs="+", type=Path, help="raw frame files or folders")
+    s.add_argument("-o", "--out", type=Path, required=True, help="output folder")
+    s.add_argument("--layout", help="sensor layout (imx250mzr, imx250myr, mono:A,B,C,D, "
+                                    "color:A,B,C,D:BAYER); default: from the sidecar / pixel format")
+    s.add_argument("--demosaic", choices=demosaic_methods,
+                   help="demosaicing method (default: the best for the frame's layout, "
+                        "polcam.demosaicing.default_method)")
+    s.add_argument("--resolution", default="full", choices=("full", "cell"),
+                   help="full: one output pixel per sensor pixel (default); cell: one per 2x2 polarizer cell")
+    s.add_argument("--format", default="exr", choices=tuple(FORMATS),
+                   help="exr (float32, default), tiff (float32) or tiff16 (uint16 scaled from [0, 1]; "
+                        "signed maps stay float32)")
+    add_max_pixels_argument(s)
+    s.add_argument("--recursive", action="store_true", help="descend into sub-folders")
+    s.add_argument("--quiet", action="store_true", help="print only the final line and errors")
+    s.set_defaults(func=cmd_stokes)
+    return s
