@@ -47,7 +47,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from polcam.demosaicing._lattice import bilinear_cells, run_jobs
+from polcam.demosaicing._lattice import bilinear_cells, run_jobs, sublattices
 from polcam.demosaicing._registry import register
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
@@ -273,8 +273,8 @@ def apply_bank(img: np.ndarray, weights: np.ndarray, shift: tuple[int, int], cha
 
 def _job(blocks: np.ndarray, weights: np.ndarray, out: np.ndarray, r0: int, r1: int, wb: int,
          channels: int) -> None:
-    y = block_features(blocks, r0, r1) @ weights
-    y = y.reshape(r1 - r0, wb, 4, BLOCK, BLOCK, channels)
+    feats = block_features(blocks, r0, r1).reshape(-1, weights.shape[0])
+    y = (feats @ weights).reshape(r1 - r0, wb, 4, BLOCK, BLOCK, channels)  # one 2-D GEMM
     for k in range(4):
         dst = out[k, r0 * BLOCK:r1 * BLOCK].reshape(r1 - r0, BLOCK, wb, BLOCK, channels)
         dst[...] = y[:, :, k].transpose(0, 2, 1, 3, 4)
@@ -292,10 +292,18 @@ LMMSE_PARAMS: dict[str, float | str] = {
 }
 
 
-def _lattice_mask_blur(lay: Layout, k: int, c: int, h: int, w: int, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """The 0/1 mask of lattice (k, c) and its Gaussian blur (BORDER_REFLECT), both (H, W) float32."""
-    mask = ((lay.angle_index(h, w) == k) & (lay.channel_index(h, w) == c)).astype(np.float32)
-    return mask, cv2.GaussianBlur(mask, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+def _gauss(sigma: float) -> np.ndarray:
+    """Gaussian kernel of ``sigma`` pixels truncated at 2.5 sigma, float32."""
+    r = max(1, int(np.ceil(2.5 * sigma)))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    return (k / k.sum()).astype(np.float32)
+
+
+def _indicator_blur(n: int, offset: int, period: int, kernel: np.ndarray) -> np.ndarray:
+    """``kernel`` applied to the 0/1 indicator of ``offset::period`` along a line of n (BORDER_REFLECT)."""
+    ind = np.zeros((1, n), np.float32)
+    ind[0, offset::period] = 1.0
+    return cv2.sepFilter2D(ind, cv2.CV_32F, kernel, np.ones(1, np.float32), borderType=cv2.BORDER_REFLECT)[0]
 
 
 def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, sigma: float,
@@ -303,8 +311,9 @@ def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, 
     """Re-estimate every angle from its own samples, with S0 from ``stack`` as the guide.
 
     ``mode="ratio"``: the polarization ratio ``q = I / (S0 / 2 + e)`` of each (angle,
-    colour) lattice's samples (S0 of the sample's own colour) is interpolated by
-    Gaussian normalised convolution and multiplied back by ``S0 / 2 + e``;
+    colour) lattice's samples (S0 of the sample's own colour, clipped to [0, 2]) is
+    interpolated by Gaussian normalised convolution (``sigma`` pixels, truncated at
+    2.5 sigma) and multiplied back by ``S0 / 2 + e``;
     ``"difference"``: the polarization difference ``I - S0 / 2`` is interpolated and
     added back.  Both vary much more slowly than the intensity where the
     polarization is smooth (the ratio is ``1 + DoLP cos(2 (theta - AoLP))``, free of
@@ -324,6 +333,7 @@ def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, 
     """
     h, w = img.shape
     channels = stack.shape[-1]
+    period = lay.period
     half = stack.sum(axis=0) * np.float32(0.25)  # S0 / 2 per channel, (H, W, C)
     ci = lay.channel_index(h, w)
     own = np.take_along_axis(half, ci[..., None], axis=2)[..., 0]
@@ -332,16 +342,29 @@ def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, 
         # the true ratio I / (S0 / 2) = 1 + DoLP cos(...) lies in [0, 2]; the clip keeps a poor
         # first-stage S0 (near 0 or negative on aliased detail) from blowing it up
         val = np.clip(img / (np.maximum(own, 0) + e), 0, 2)
+        base = np.maximum(half, 0) + e
     else:
         val = img - own
+        base = half
+    kern = _gauss(sigma)
     out = np.empty_like(stack)
 
     def job(k: int, c: int) -> None:
-        mask, den = _lattice_mask_blur(lay, k, c, h, w, sigma)
-        num = cv2.GaussianBlur(val * mask, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        offsets = sublattices(lay, k, c)
+        sparse = np.zeros((h, w), np.float32)
+        den = np.zeros((h, w), np.float32)
+        for oy, ox in offsets:
+            sparse[oy::period, ox::period] = val[oy::period, ox::period]
+            den += np.outer(_indicator_blur(h, oy, period, kern), _indicator_blur(w, ox, period, kern))
+        num = cv2.sepFilter2D(sparse, cv2.CV_32F, kern, kern, borderType=cv2.BORDER_REFLECT)
         q = num / np.maximum(den, np.float32(1e-12))
-        est = q * (np.maximum(half[..., c], 0) + e) if mode == "ratio" else q + half[..., c]
-        out[k, ..., c] = np.where(mask > 0, img, est)
+        est = out[k, ..., c]
+        if mode == "ratio":
+            np.multiply(q, base[..., c], out=est)
+        else:
+            np.add(q, base[..., c], out=est)
+        for oy, ox in offsets:  # own samples kept
+            est[oy::period, ox::period] = img[oy::period, ox::period]
 
     run_jobs([lambda k=k, c=c: job(k, c) for k in range(4) for c in range(channels)])
     return out

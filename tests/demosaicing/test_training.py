@@ -30,8 +30,8 @@ def test_scenes_are_seeded_in_range_and_colours_differ_in_polarization() -> None
 
 
 @pytest.mark.parametrize("color", [False, True])
-def test_fit_recovers_a_planted_linear_map_and_keeps_the_constraints(color: bool) -> None:
-    """Targets made by a known bank that satisfies the constraints: the fit (tiny ridge) finds it."""
+def test_fit_keeps_the_constraints_and_fits_its_data(color: bool) -> None:
+    """The fitted bank meets the lattice-sum and moment constraints and predicts its training blocks."""
     lay = parse_layout(CANONICAL[(color, "diag")])
     rng = np.random.default_rng(0)
     stack = training_stack(rng, 64)
