@@ -155,8 +155,10 @@ class Plan:
 
 def plan(lay: Layout, height: int, width: int) -> Plan:
     """The :class:`Plan` that brings a ``height`` x ``width`` mosaic of ``lay`` to a canonical layout."""
-    ai = lay.angle_index(height, width)
-    ci = lay.channel_index(height, width)
+    # the pattern of a flipped image depends on its size only modulo the period
+    hh, ww = 2 * BLOCK + height % BLOCK, 2 * BLOCK + width % BLOCK
+    ai = lay.angle_index(hh, ww)
+    ci = lay.channel_index(hh, ww)
     for physical_only in (True, False):
         for t in _TRANSFORMS:
             a_t = _transform(ai, t)[:BLOCK, :BLOCK]
@@ -383,7 +385,9 @@ def lmmse(img: np.ndarray, lay: Layout) -> np.ndarray:
     raw = np.ascontiguousarray(_transform(img, p.transform))
     channels = 3 if lay.is_color else 1
     canon = apply_bank(raw, _weights()[p.key], p.shift, channels)
-    stack = np.ascontiguousarray(_untransform(canon[list(p.relabel)], p.transform))
+    if p.relabel != (0, 1, 2, 3):
+        canon = canon[list(p.relabel)]
+    stack = np.ascontiguousarray(_untransform(canon, p.transform))
     mode = str(LMMSE_PARAMS["color_stage" if lay.is_color else "mono_stage"])
     if mode != "none":
         stack = second_stage(img, stack, lay, mode=mode, sigma=float(LMMSE_PARAMS["sigma"]),
