@@ -52,8 +52,9 @@ from polcam.demosaicing._registry import register
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 
-__all__ = ["BLOCK", "CANONICAL", "LMMSE_PARAMS", "second_stage", "REFERENCE", "WEIGHTS_FILE", "block_features", "lattice_of_taps", "lmmse",
-           "plan"]
+__all__ = ["BLOCK", "CANONICAL", "LMMSE_PARAMS", "NBLOCKS", "REFERENCE", "WEIGHTS_FILE", "Plan", "apply_bank",
+           "block_features", "lattice_of_taps", "lmmse", "plan", "second_stage", "tap_offsets", "to_blocks",
+           "weight_key"]
 
 REFERENCE = ("LMMSE demosaicing after N. Spote, P.-J. Lapray, J.-B. Thomas, I. Farup, \"Joint demosaicing "
              "of colour and polarisation from filter arrays\", CIC 2021 (and P. Amba, J. Dias, "

@@ -310,7 +310,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--scenes", type=int, default=150, help="number of rendered scenes (default 150)")
     ap.add_argument("--size", type=int, default=160, help="scene side in pixels (default 160)")
     ap.add_argument("--seed", type=int, default=2024, help="random seed (default 2024)")
-    ap.add_argument("--ridge", type=float, default=1e-2, help="ridge, relative to the mean Gram diagonal (default 0.01)")
+    ap.add_argument("--ridge", type=float, default=1e-2,
+                    help="ridge, relative to the mean Gram diagonal (default 0.01)")
     ap.add_argument("--out", type=Path, default=WEIGHTS_FILE, help=f"output .npz (default {WEIGHTS_FILE})")
     args = ap.parse_args(argv)
     if args.size % BLOCK or args.size < 4 * BLOCK:

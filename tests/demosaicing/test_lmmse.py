@@ -12,7 +12,7 @@ import polcam.demosaicing.lmmse as lm
 from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.demosaicing.training import training_stack
 from polcam.mosaic import Layout, parse_layout
-from polcam.stokes import aolp, dolp, stokes
+from polcam.stokes import aolp, dolp
 from polcam.synth.patterns import stack_from_stokes, uniform_scene
 
 MZR = parse_layout("imx250mzr")
@@ -193,5 +193,4 @@ def test_beats_bilinear_where_colours_differ_in_polarization() -> None:
             mse = float(np.mean((dolp(e).astype(np.float64) - dolp(t)) ** 2))
             psnr[method] = 10 * np.log10(1 / mse)
         gains.append(psnr["lmmse"] - psnr["bilinear"])
-        assert stokes(truth).s0.shape == (128, 128, 3)
     assert float(np.mean(gains)) >= 1.0, gains
