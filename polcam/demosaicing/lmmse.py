@@ -355,12 +355,15 @@ def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, 
     def job(k: int, c: int) -> None:
         offsets = sublattices(lay, k, c)
         sparse = np.zeros((h, w), np.float32)
-        den = np.zeros((h, w), np.float32)
         for oy, ox in offsets:
             sparse[oy::period, ox::period] = val[oy::period, ox::period]
-            den += np.outer(_indicator_blur(h, oy, period, kern), _indicator_blur(w, ox, period, kern))
-        num = cv2.sepFilter2D(sparse, cv2.CV_32F, kern, kern, borderType=cv2.BORDER_REFLECT)
-        q = num / np.maximum(den, np.float32(1e-12))
+        q = cv2.sepFilter2D(sparse, cv2.CV_32F, kern, kern, borderType=cv2.BORDER_REFLECT)
+        blurs = [(_indicator_blur(h, oy, period, kern), _indicator_blur(w, ox, period, kern)) for oy, ox in offsets]
+        if len(blurs) == 1:  # a rectangular lattice: the blurred mask is an outer product
+            q *= (1 / np.maximum(blurs[0][0], np.float32(1e-12)))[:, None]
+            q *= (1 / np.maximum(blurs[0][1], np.float32(1e-12)))[None, :]
+        else:
+            q /= np.maximum(sum(np.outer(a, b) for a, b in blurs), np.float32(1e-12))
         est = out[k, ..., c]
         if mode == "ratio":
             np.multiply(q, base[..., c], out=est)
