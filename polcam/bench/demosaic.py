@@ -5,9 +5,12 @@ colour for RGB, at every pixel).  Each stack is mosaicked in a sensor layout
 (:func:`polcam.demosaicing.mosaic_stack`), quantised to 16 bits (the same uint16 raw
 goes to every method), demosaicked, and compared with the stack it came from.
 
-Scenes: the real colour stack of ``<data_dir>/real-color-stack`` (four 8-bit RGB
-PNGs at 0, 45, 90, 135 degrees; for the mono layout its green channel) when a
-data folder is given, and the synthetic scenes of :mod:`polcam.synth.patterns`.
+Scenes: the real colour stacks of ``<data_dir>`` when a data folder is given
+(:data:`REAL_SCENES`: ``real-color-stack`` and ``real-color-stacks/{cpd-61,jcpd-15}``,
+four 8-bit RGB PNGs at 0, 45, 90, 135 degrees each; evaluation only, never
+training data), and the synthetic scenes of :mod:`polcam.synth.patterns`.  A
+colour layout gets the RGB stacks; a mono layout gets each stack's luminance
+(Rec. 709 weights) and mono synthetic scenes.
 
 Metrics, over the pixels at least :data:`BORDER` pixels from every edge:
 
@@ -65,6 +68,7 @@ __all__ = [
     "DEFAULT_METHODS",
     "format_markdown",
     "load_real_stack",
+    "load_real_stacks",
     "main",
     "polanalyser_order",
     "quality",
@@ -78,7 +82,7 @@ AOLP_MIN_DOLP = 0.1
 #: ... and at least this S0 (S0 of a white unpolarized pixel is 1).
 AOLP_MIN_S0 = 0.1
 #: Methods measured by default: polcam's and polanalyser's bilinear.
-DEFAULT_METHODS: tuple[str, ...] = ("bilinear", "eari", "polanalyser")
+DEFAULT_METHODS: tuple[str, ...] = ("bilinear", "eari", "lmmse", "polanalyser")
 #: Layouts measured by default (polanalyser knows only these two).
 DEFAULT_LAYOUTS: tuple[str, ...] = ("imx250mzr", "imx250myr")
 #: Size of the raw frame timed for the speed figures (H, W).
@@ -86,6 +90,14 @@ SPEED_SHAPE: tuple[int, int] = (2048, 2448)
 
 _REAL_DIR = "real-color-stack"
 _REAL_FILES = ("0_1.png", "45_1.png", "90_1.png", "135_1.png")
+#: The real scenes: name -> (folder under the data folder, the files at 0, 45, 90, 135 degrees).
+REAL_SCENES: dict[str, tuple[str, tuple[str, ...]]] = {
+    "real": (_REAL_DIR, _REAL_FILES),
+    "real-cpd61": ("real-color-stacks/cpd-61", ("0.png", "45.png", "90.png", "135.png")),
+    "real-jcpd15": ("real-color-stacks/jcpd-15", ("0.png", "45.png", "90.png", "135.png")),
+}
+#: Rec. 709 luminance weights: the mono version of a real colour stack.
+LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 
 # ---------------------------------------------------------------------------
@@ -110,9 +122,22 @@ def load_real_stack(data_dir: Path) -> np.ndarray:
     FrameReadError
         A file is missing or unreadable, or the four differ in size.
     """
-    folder = Path(data_dir) / _REAL_DIR
+    return _load_stack(Path(data_dir) / _REAL_DIR, _REAL_FILES)
+
+
+def load_real_stacks(data_dir: Path) -> list[tuple[str, np.ndarray]]:
+    """Every real stack of :data:`REAL_SCENES` found under ``data_dir``: [(scene name, (4, H, W, 3)
+    float32 RGB in [0, 1])]; scenes whose folder is absent are left out."""
+    out = []
+    for name, (folder, files) in REAL_SCENES.items():
+        if (Path(data_dir) / folder).is_dir():
+            out.append((name, _load_stack(Path(data_dir) / folder, files)))
+    return out
+
+
+def _load_stack(folder: Path, files: Sequence[str]) -> np.ndarray:
     images = []
-    for name in _REAL_FILES:
+    for name in files:
         path = folder / name
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if img is None or img.ndim != 3 or img.shape[2] != 3:
@@ -139,9 +164,9 @@ def _crop(stack: np.ndarray, size: int | None) -> np.ndarray:
 def _scenes(data_dir: Path | None, size: int | None, seed: int,
             color: bool) -> list[tuple[str, np.ndarray]]:
     out = []
-    if data_dir is not None and (Path(data_dir) / _REAL_DIR).is_dir():
-        real = _crop(load_real_stack(Path(data_dir)), size)
-        out.append(("real", real if color else np.ascontiguousarray(real[..., 1])))
+    for name, stack in (load_real_stacks(Path(data_dir)) if data_dir is not None else []):
+        real = _crop(stack, size)
+        out.append((name, real if color else np.tensordot(real, LUMA, axes=([3], [0])).astype(np.float32)))
     n = size or 512
     n -= n % 4
     for name in SCENES:
@@ -314,12 +339,11 @@ def run(
     Parameters
     ----------
     data_dir
-        Shared data folder holding ``real-color-stack/``; ``None`` (or a folder
-        without it) runs the synthetic scenes only.
+        Shared data folder holding the real stacks of :data:`REAL_SCENES`; ``None``
+        (or a folder without them) runs the synthetic scenes only.
     size
-        Side of the scenes in pixels: the real stack is centre-cropped to it
-        (``None``: the whole 1456 x 1088 stack), the synthetic scenes are built
-        at it (``None``: 512).
+        Side of the scenes in pixels: the real stacks are centre-cropped to it
+        (``None``: whole), the synthetic scenes are built at it (``None``: 512).
     seed
         Seed of the synthetic scenes.
     methods
@@ -394,11 +418,16 @@ def format_markdown(rows: Sequence[dict[str, Any]]) -> str:
         for r in sel:
             lines.append(f"| {r['scene']} | {r['method']} | "
                          + " | ".join(f"{r[k]:.2f}" for k, _ in _COLUMNS) + " |")
-        for method in dict.fromkeys(r["method"] for r in sel):
-            ms = [r for r in sel if r["method"] == method]
-            means = [float(np.mean([r[k] for r in ms])) for k, _ in _COLUMNS]
-            lines.append(f"| **mean of {len(ms)}** | **{method}** | "
-                         + " | ".join(f"**{v:.2f}**" for v in means) + " |")
+        groups = [("", sel)]
+        real = [r for r in sel if r["scene"] in REAL_SCENES]
+        if real and len(real) < len(sel):
+            groups += [(" real", real), (" synthetic", [r for r in sel if r["scene"] not in REAL_SCENES])]
+        for label, group in groups:
+            for method in dict.fromkeys(r["method"] for r in group):
+                ms = [r for r in group if r["method"] == method]
+                means = [float(np.mean([r[k] for r in ms])) for k, _ in _COLUMNS]
+                lines.append(f"| **mean of {len(ms)}{label}** | **{method}** | "
+                             + " | ".join(f"**{v:.2f}**" for v in means) + " |")
         lines.append("")
     speed_rows = [r for r in rows if r["kind"] == "speed"]
     if speed_rows:
@@ -425,7 +454,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry: run the benchmark, print Markdown, optionally save JSON."""
     ap = argparse.ArgumentParser(prog="python -m polcam.bench.demosaic", description=__doc__.split("\n")[0])
     ap.add_argument("--data-dir", type=Path, default=None,
-                    help="shared data folder with real-color-stack/ (default: synthetic scenes only)")
+                    help="shared data folder with the real stacks (default: synthetic scenes only)")
     ap.add_argument("--size", type=int, default=None,
                     help="scene side in pixels (default: whole real stack, 512 for synthetic)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the synthetic scenes (default 0)")

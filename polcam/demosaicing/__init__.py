@@ -8,7 +8,8 @@ method it runs the registry's best one for the layout (:func:`default_method`).
 of a given layout samples it), used by the benchmarks and the tests.
 
 Every module in this package whose name does not start with an underscore is a
-method module; importing the package imports them all, and each registers itself
+method module (except :mod:`~polcam.demosaicing.training`, the ``lmmse`` training
+script); importing the package imports them all, and each registers itself
 with :func:`register`.  docs/demosaic.md describes the methods.
 """
 
@@ -30,8 +31,11 @@ from polcam.demosaicing._registry import (
     to_float,
 )
 
+#: Modules of this package that are not methods.
+_NOT_METHODS = frozenset({"training"})
+
 for _mod in pkgutil.iter_modules(__path__):
-    if not _mod.name.startswith("_"):
+    if not _mod.name.startswith("_") and _mod.name not in _NOT_METHODS:
         importlib.import_module(f"{__name__}.{_mod.name}")
 
 

@@ -61,12 +61,12 @@ class MethodSpec:
 _METHODS: dict[str, MethodSpec] = {}
 
 # The order methods() lists methods in (registered methods not listed here follow, sorted).
-_ORDER = ("bilinear", "eari")
+_ORDER = ("bilinear", "eari", "lmmse")
 
 #: The method :func:`demosaic` runs when none is named, per kind of layout: the best
 #: polcam has (docs/benchmarks.md backs the choice); process, capture and the demo use
 #: the same.
-_DEFAULTS = {"color": "eari", "mono": "eari"}
+_DEFAULTS = {"color": "lmmse", "mono": "eari"}
 
 
 def register(name: str, *, cell: DemosaicFn | None = None, mono: bool = True, color: bool = True,

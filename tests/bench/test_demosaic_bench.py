@@ -108,3 +108,22 @@ def test_real_stack_loads(shared_data: Path) -> None:
     assert 0.0 <= st.min() and st.max() <= 1.0
     # a real measurement: I0 + I90 and I45 + I135 agree on average to a few grey levels
     assert abs(float((st[0] + st[2]).mean() - (st[1] + st[3]).mean())) < 0.02
+
+
+def test_all_real_stacks_are_measured(shared_data: Path) -> None:
+    """Every real stack found is a scene (colour for the colour layout, luminance for mono), and the
+    report gives the mean over the real scenes and over the synthetic ones apart."""
+    from polcam.bench.demosaic import REAL_SCENES, load_real_stacks
+
+    found = [name for name, _ in load_real_stacks(shared_data)]
+    if not found:
+        pytest.skip("no real stacks in the shared data")
+    assert set(found) <= set(REAL_SCENES)
+    rows = run(data_dir=shared_data, size=64, seed=0, methods=("bilinear",),
+               layouts=("imx250mzr", "imx250myr"), speed=False)
+    scenes = {(r["layout"], r["scene"]) for r in rows}
+    for name in found:
+        assert ("imx250mzr", name) in scenes and ("imx250myr", name) in scenes
+    text = format_markdown(rows)
+    assert f"**mean of {len(found)} real** | **bilinear**" in text
+    assert f"**mean of {len(SCENES)} synthetic** | **bilinear**" in text

@@ -1,0 +1,333 @@
+"""Training of the ``lmmse`` filter bank on scenes polcam renders itself.
+
+Run ``python -m polcam.demosaicing.training`` to remake
+``polcam/demosaicing/lmmse_weights.npz`` (a few minutes on two cores).  Nothing
+here reads third-party images: every training stack is drawn by
+:func:`training_stack` from a seeded random generator, so the weights carry no
+one else's licence.
+
+The scenes aim at what real colour-polarization frames contain and what the
+benchmark's synthetic scenes do not: colours that do NOT share one
+polarization.  Each scene is a background and a few shapes (ellipses, polygons,
+half-planes, with sharp anti-aliased edges), each with
+
+* a coloured diffuse layer: a random colour, textured by 1/f noise or stripes,
+  weakly polarized (DoLP 0 to 0.25) with a smoothly varying AoLP;
+* sometimes a strongly polarized coloured region (DoLP up to 0.9: filters,
+  screens, sky);
+* sometimes specular highlights in the illuminant's colour (near white), strongly
+  polarized (DoLP 0.3 to 1) with an AoLP across the diffuse one;
+
+then mild optical blur, clipping at the white level, and raw noise
+(signal-dependent Gaussian, sometimes 8-bit quantisation) on the mosaic only; the
+targets are the noise-free stacks.
+
+The fit (:func:`fit_bank`) is constrained least squares: for every output (angle,
+pixel of the 4x4 block, colour), minimise the squared error over all training
+blocks subject to (1) a pixel's own sample is kept, (2) the weights on each (angle,
+colour) lattice sum to 1 on the output's own lattice and 0 on the others, (3) the
+first moments of each lattice's weights about the output pixel vanish (so an image
+whose every angle and colour is an affine function of position comes back exactly).
+A small ridge term (``ridge`` times the mean diagonal of the Gram matrix) keeps the
+solve well conditioned.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from polcam.demosaicing._registry import mosaic_stack
+from polcam.demosaicing.lmmse import (  # noqa: I001
+    BLOCK,
+    CANONICAL,
+    NBLOCKS,
+    WEIGHTS_FILE,
+    lattice_of_taps,
+    tap_offsets,
+    block_features,
+    to_blocks,
+    weight_key,
+)
+from polcam.io.atomic import atomic_path
+from polcam.mosaic import Layout, parse_layout
+
+__all__ = ["fit_bank", "main", "training_stack"]
+
+#: Rec. 709 luminance weights: the mono training stacks are the colour ones' luminance.
+LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+
+
+# ---------------------------------------------------------------------------
+# scenes
+# ---------------------------------------------------------------------------
+
+def _smooth_field(rng: np.random.Generator, n: int, *, scale: float) -> np.ndarray:
+    """A smooth random field in about [-1, 1]: a few low-frequency cosines, (n, n)."""
+    y, x = np.mgrid[0:n, 0:n].astype(np.float32) / n
+    out = np.zeros((n, n), np.float32)
+    for _ in range(4):
+        f = rng.uniform(0.2, scale)
+        th = rng.uniform(0, np.pi)
+        out += np.cos(2 * np.pi * f * (x * np.cos(th) + y * np.sin(th)) + rng.uniform(0, 2 * np.pi))
+    return out / 2
+
+
+def _pink(rng: np.random.Generator, n: int, beta: float) -> np.ndarray:
+    """1/f^beta noise, zero mean, unit standard deviation, (n, n)."""
+    f = np.fft.fftfreq(n)
+    r = np.sqrt(f[:, None] ** 2 + f[None, :] ** 2)
+    r[0, 0] = 1.0
+    spec = (rng.normal(size=(n, n)) + 1j * rng.normal(size=(n, n))) / r**beta
+    spec[0, 0] = 0
+    img = np.real(np.fft.ifft2(spec)).astype(np.float32)
+    return img / max(float(img.std()), 1e-6)
+
+
+def _texture(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A multiplicative texture around 1, (n, n)."""
+    kind = rng.integers(0, 4)
+    if kind == 0:
+        return np.ones((n, n), np.float32)
+    if kind == 1:
+        return np.clip(1 + rng.uniform(0.05, 0.5) * _pink(rng, n, rng.uniform(0.8, 1.6)), 0.05, 3)
+    y, x = np.mgrid[0:n, 0:n].astype(np.float32)
+    th = rng.uniform(0, np.pi)
+    u = x * np.cos(th) + y * np.sin(th)
+    if kind == 2:  # stripes of a random period (in rendered pixels)
+        period = rng.uniform(4, 40)
+        wave = np.cos(2 * np.pi * u / period)
+    else:  # a chirp: frequency rising across the shape
+        wave = np.cos(2 * np.pi * (u / n) ** 2 * rng.uniform(20, 120))
+    if rng.random() < 0.5:
+        wave = np.sign(wave)
+    return (1 + rng.uniform(0.1, 0.7) * wave).astype(np.float32)
+
+
+def _shape_mask(rng: np.random.Generator, n: int) -> np.ndarray:
+    mask = np.zeros((n, n), np.uint8)
+    kind = rng.integers(0, 3)
+    if kind == 0:
+        c = tuple(int(v) for v in rng.integers(0, n, 2))
+        axes = tuple(int(v) for v in rng.integers(n // 16, n // 2, 2))
+        cv2.ellipse(mask, c, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1, lineType=cv2.LINE_8)
+    elif kind == 1:
+        pts = rng.integers(-n // 4, n + n // 4, size=(int(rng.integers(3, 7)), 2)).astype(np.int32)
+        cv2.fillPoly(mask, [cv2.convexHull(pts)], 1)
+    else:
+        y, x = np.mgrid[0:n, 0:n]
+        th = rng.uniform(0, 2 * np.pi)
+        mask[(x - rng.uniform(0, n)) * np.cos(th) + (y - rng.uniform(0, n)) * np.sin(th) > 0] = 1
+    return mask.astype(bool)
+
+
+def training_stack(rng: np.random.Generator, size: int) -> np.ndarray:
+    """One random colour training scene.
+
+    Parameters
+    ----------
+    rng
+        Random generator (the scene is a function of its state).
+    size
+        Side in pixels (a multiple of 4).
+
+    Returns
+    -------
+    numpy.ndarray
+        (4, size, size, 3) float32 in [0, 1], angles 0, 45, 90, 135, RGB.
+    """
+    n = 2 * size  # rendered at twice the size, then area-averaged: anti-aliased edges
+    s = np.zeros((3, n, n, 3), np.float32)  # S0, S1, S2 per channel
+    for i in range(int(rng.integers(3, 9))):
+        mask = np.ones((n, n), bool) if i == 0 else _shape_mask(rng, n)
+        colour = rng.uniform(0, 1, 3) ** rng.uniform(0.5, 2.5)
+        colour = colour / max(float(colour.max()), 1e-3) * rng.uniform(0.1, 1.0)
+        diffuse = _texture(rng, n)[..., None] * colour.astype(np.float32)
+        strong = rng.random() < 0.2
+        rho = (rng.uniform(0.3, 0.9) if strong else rng.uniform(0, 0.25)) * (
+            1 + 0.3 * _smooth_field(rng, n, scale=2.0))
+        phi = rng.uniform(0, np.pi) + rng.uniform(0, 1.5) * _smooth_field(rng, n, scale=2.0)
+        layers = [(diffuse, np.clip(rho, 0, 1), phi)]
+        if rng.random() < 0.5:
+            y, x = np.mgrid[0:n, 0:n].astype(np.float32)
+            spec = np.zeros((n, n), np.float32)
+            for _ in range(int(rng.integers(1, 4))):
+                cy, cx = rng.uniform(0, n, 2)
+                sig = rng.uniform(n / 80, n / 8)
+                spec += rng.uniform(0.2, 1.5) * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * sig**2))
+            light = 1 + rng.uniform(-0.15, 0.15, 3)
+            rho_s = np.clip(rng.uniform(0.3, 1.0) + 0.1 * _smooth_field(rng, n, scale=3.0), 0, 1)
+            phi_s = phi + np.pi / 2 + rng.uniform(-0.4, 0.4)
+            layers.append((spec[..., None] * light.astype(np.float32), rho_s, phi_s))
+        region = np.zeros((3, n, n, 3), np.float32)  # the shape hides what lies behind it
+        for inten, r, p in layers:
+            r3 = np.asarray(r, np.float32)[..., None]
+            p3 = np.asarray(p, np.float32)[..., None]
+            region[0] += inten
+            region[1] += inten * r3 * np.cos(2 * p3)
+            region[2] += inten * r3 * np.sin(2 * p3)
+        s[:, mask] = region[:, mask]
+    s = np.stack([cv2.resize(c, (size, size), interpolation=cv2.INTER_AREA) for c in s])
+    blur = rng.uniform(0, 1.0)
+    if blur > 0.3:
+        s = np.stack([cv2.GaussianBlur(c, (0, 0), blur) for c in s])
+    theta = np.deg2rad([0, 45, 90, 135]).astype(np.float32)
+    stack = 0.5 * (s[0][None] + np.cos(2 * theta)[:, None, None, None] * s[1][None]
+                   + np.sin(2 * theta)[:, None, None, None] * s[2][None])
+    stack *= np.float32(rng.uniform(0.4, 1.1) / max(float(np.percentile(stack, 99.5)), 1e-3))
+    return np.clip(stack, 0, 1).astype(np.float32)
+
+
+def _noisy(rng: np.random.Generator, raw: np.ndarray) -> np.ndarray:
+    a = rng.uniform(0, 2e-4)
+    b = rng.uniform(0, 2e-3) ** 2
+    out = raw + rng.normal(size=raw.shape).astype(np.float32) * np.sqrt(a * raw + b).astype(np.float32)
+    if rng.random() < 0.5:
+        out = np.round(out * 255) / 255
+    return out.astype(np.float32)
+
+
+# ---------------------------------------------------------------------------
+# the fit
+# ---------------------------------------------------------------------------
+
+def _targets(stack: np.ndarray, channels: int) -> np.ndarray:
+    """(4, H, W[, C]) -> (hb, wb, 4 * 16 * C) in (angle, y, x, colour) order."""
+    st = stack.reshape(stack.shape[:3] + (channels,))
+    k, h, w, c = st.shape
+    t = st.reshape(k, h // BLOCK, BLOCK, w // BLOCK, BLOCK, c).transpose(1, 3, 0, 2, 4, 5)
+    return t.reshape(h // BLOCK, w // BLOCK, -1)
+
+
+def accumulate(stacks: Sequence[tuple[np.ndarray, np.ndarray]], lay: Layout
+               ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Gram matrix X^T X (144, 144) and X^T Y (144, outputs) over (raw, truth) pairs in layout ``lay``."""
+    channels = 3 if lay.is_color else 1
+    gram = np.zeros((144, 144))
+    cross = np.zeros((144, 4 * BLOCK * BLOCK * channels))
+    count = 0
+    for raw, truth in stacks:
+        blocks = to_blocks(raw)
+        hb = blocks.shape[0] - 2
+        x = block_features(blocks, 0, hb).reshape(-1, 144).astype(np.float64)
+        y = _targets(truth, channels)[1:-1, 1:-1].reshape(-1, cross.shape[1]).astype(np.float64)
+        gram += x.T @ x
+        cross += x.T @ y
+        count += x.shape[0]
+    return gram, cross, count
+
+
+def fit_bank(gram: np.ndarray, cross: np.ndarray, lay: Layout, *, ridge: float = 1e-2,
+             moments: bool = True) -> np.ndarray:
+    """Constrained least-squares filter bank (see the module docstring).
+
+    ``gram`` and ``cross`` come from :func:`accumulate`; ``moments``: impose constraint (3).
+
+    Returns
+    -------
+    numpy.ndarray
+        (144, 4 * 16 * C) float32 weights.
+    """
+    channels = 3 if lay.is_color else 1
+    lat = lattice_of_taps(lay)
+    off = tap_offsets()
+    nlat = 4 * channels
+    a = gram + ridge * np.trace(gram) / gram.shape[0] * np.eye(gram.shape[0])
+    weights = np.zeros(cross.shape)
+    ai = lay.angle_index(BLOCK, BLOCK)
+    ci = lay.channel_index(BLOCK, BLOCK)
+    centre = (NBLOCKS + 1) * BLOCK * BLOCK  # first tap of the centre block (block row 1, column 1)
+    for k in range(4):
+        for u in range(BLOCK):
+            for v in range(BLOCK):
+                for c in range(channels):
+                    o = ((k * BLOCK + u) * BLOCK + v) * channels + c
+                    target = k * channels + c
+                    if ai[u, v] * channels + ci[u, v] == target:
+                        weights[centre + u * BLOCK + v, o] = 1.0
+                        continue
+                    rows, rhs = [], []
+                    for lt in range(nlat):
+                        sel = (lat == lt).astype(np.float64)
+                        rows.append(sel)
+                        rhs.append(1.0 if lt == target else 0.0)
+                        if moments:
+                            rows.append(sel * (off[:, 0] - u))
+                            rhs.append(0.0)
+                            rows.append(sel * (off[:, 1] - v))
+                            rhs.append(0.0)
+                    cm = np.array(rows)
+                    kkt = np.block([[a, cm.T], [cm, np.zeros((len(rows), len(rows)))]])
+                    b = np.concatenate([cross[:, o], rhs])
+                    try:
+                        sol = np.linalg.solve(kkt, b)
+                    except np.linalg.LinAlgError:  # pragma: no cover - dependent constraints
+                        sol = np.linalg.lstsq(kkt, b, rcond=None)[0]
+                    weights[:, o] = sol[:144]
+    return weights.astype(np.float32)
+
+
+def train(*, scenes: int, size: int, seed: int, ridge: float, moments: bool = True) -> dict[str, np.ndarray]:
+    """Render ``scenes`` scenes and fit the four banks of :data:`CANONICAL`."""
+    rng = np.random.default_rng(seed)
+    sums: dict[str, list] = {}
+    for i in range(scenes):
+        stack = training_stack(rng, size)
+        mono = np.tensordot(stack, LUMA, axes=([3], [0])).astype(np.float32)
+        for (color, geo), name in CANONICAL.items():
+            lay = parse_layout(name)
+            truth = stack if color else mono
+            raw = _noisy(rng, mosaic_stack(truth, layout=lay))
+            g, x, n = accumulate([(raw, truth)], lay)
+            key = weight_key(color, geo)
+            if key in sums:
+                sums[key][0] += g
+                sums[key][1] += x
+                sums[key][2] += n
+            else:
+                sums[key] = [g, x, n]
+        if (i + 1) % 20 == 0:
+            sys.stderr.write(f"{i + 1}/{scenes} scenes\n")
+    out = {}
+    for (color, geo), name in CANONICAL.items():
+        key = weight_key(color, geo)
+        g, x, _ = sums[key]
+        out[key] = fit_bank(g, x, parse_layout(name), ridge=ridge, moments=moments)
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry: train and write the weights atomically."""
+    ap = argparse.ArgumentParser(prog="python -m polcam.demosaicing.training",
+                                 description="Train the lmmse demosaicing filter bank on rendered scenes.")
+    ap.add_argument("--scenes", type=int, default=150, help="number of rendered scenes (default 150)")
+    ap.add_argument("--size", type=int, default=160, help="scene side in pixels (default 160)")
+    ap.add_argument("--seed", type=int, default=2024, help="random seed (default 2024)")
+    ap.add_argument("--ridge", type=float, default=1e-2,
+                    help="ridge, relative to the mean Gram diagonal (default 0.01)")
+    ap.add_argument("--out", type=Path, default=WEIGHTS_FILE, help=f"output .npz (default {WEIGHTS_FILE})")
+    args = ap.parse_args(argv)
+    if args.size % BLOCK or args.size < 4 * BLOCK:
+        ap.error(f"--size {args.size}: expected a multiple of {BLOCK}, at least {4 * BLOCK}")
+    t0 = time.perf_counter()
+    weights = train(scenes=args.scenes, size=args.size, seed=args.seed, ridge=args.ridge)
+    info = {"scenes": args.scenes, "size": args.size, "seed": args.seed, "ridge": args.ridge,
+            "command": "python -m polcam.demosaicing.training " + " ".join(argv or sys.argv[1:]),
+            "data": "polcam's own rendered scenes (polcam.demosaicing.training.training_stack); "
+                    "no third-party images"}
+    with atomic_path(args.out) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, info=np.array(json.dumps(info)), **weights)
+    sys.stderr.write(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,81 @@
+"""Tests of the lmmse training script: its scenes, the constrained fit, the command line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from polcam.demosaicing import mosaic_stack
+from polcam.demosaicing.lmmse import CANONICAL, lattice_of_taps, tap_offsets
+from polcam.demosaicing.training import accumulate, fit_bank, main, training_stack
+from polcam.mosaic import parse_layout
+from polcam.stokes import dolp
+
+
+def test_scenes_are_seeded_in_range_and_colours_differ_in_polarization() -> None:
+    a = training_stack(np.random.default_rng(5), 64)
+    b = training_stack(np.random.default_rng(5), 64)
+    np.testing.assert_array_equal(a, b)
+    assert a.shape == (4, 64, 64, 3) and a.dtype == np.float32
+    assert 0.0 <= float(a.min()) and float(a.max()) <= 1.0
+    # over a few scenes, DoLP differs between colour channels at many pixels, and both weakly
+    # and strongly polarized pixels occur
+    d = np.concatenate([dolp(training_stack(np.random.default_rng(s), 64)).reshape(-1, 3) for s in range(6)])
+    spread = d.max(axis=1) - d.min(axis=1)
+    assert float(np.mean(spread > 0.05)) > 0.1
+    assert float(np.mean(d < 0.1)) > 0.2 and float(np.mean(d > 0.4)) > 0.01
+
+
+@pytest.mark.parametrize("color", [False, True])
+def test_fit_keeps_the_constraints_and_fits_its_data(color: bool) -> None:
+    """The fitted bank meets the lattice-sum and moment constraints and predicts its training blocks."""
+    lay = parse_layout(CANONICAL[(color, "diag")])
+    rng = np.random.default_rng(0)
+    stack = training_stack(rng, 64)
+    truth = stack if color else stack[..., 1]
+    raw = mosaic_stack(truth, layout=lay)
+    gram, cross, n = accumulate([(raw, truth)], lay)
+    assert n == 14 * 14 and gram.shape == (144, 144)
+    w = fit_bank(gram, cross, lay, ridge=1e-6)
+    channels = 3 if color else 1
+    lat = lattice_of_taps(lay)
+    off = tap_offsets()
+    for o in range(0, 64 * channels, 7):
+        k, rest = divmod(o, 16 * channels)
+        u, rest = divmod(rest, 4 * channels)
+        v, c = divmod(rest, channels)
+        for lt in range(4 * channels):
+            sel = lat == lt
+            assert w[sel, o].sum() == pytest.approx(1.0 if lt == k * channels + c else 0.0, abs=1e-4)
+            assert float(w[sel, o] @ (off[sel, 0] - u)) == pytest.approx(0.0, abs=1e-3)
+    # the fit predicts the training targets far better than the constraint-only solution would
+    # (a pure bilinear-like map): the residual is small compared with the targets' spread
+    from polcam.demosaicing.lmmse import block_features, to_blocks
+
+    x = block_features(to_blocks(raw), 0, 14).reshape(-1, 144)
+    pred = x @ w
+    tgt = truth.reshape(4, 16, 4, 16, 4, channels).transpose(1, 3, 0, 2, 4, 5)[1:-1, 1:-1].reshape(pred.shape)
+    assert float(np.sqrt(np.mean((pred - tgt) ** 2))) < 0.5 * float(tgt.std())
+
+
+def test_command_line_writes_weights(tmp_path: Path) -> None:
+    out = tmp_path / "w.npz"
+    assert main(["--scenes", "2", "--size", "32", "--out", str(out)]) == 0
+    with np.load(out) as data:
+        assert set(data.files) == {"info", "mono_diag", "mono_beside", "color_diag", "color_beside"}
+        assert data["color_diag"].shape == (144, 192) and data["mono_diag"].shape == (144, 64)
+        info = json.loads(str(data["info"]))
+    assert info["scenes"] == 2 and "no third-party images" in info["data"]
+    with pytest.raises(SystemExit):
+        main(["--size", "30", "--out", str(out)])
+
+
+def test_shipped_weights_say_how_they_were_made() -> None:
+    from polcam.demosaicing.lmmse import WEIGHTS_FILE
+
+    with np.load(WEIGHTS_FILE) as data:
+        info = json.loads(str(data["info"]))
+    assert info["scenes"] >= 100 and "polcam.demosaicing.training" in info["command"]
