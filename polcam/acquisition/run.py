@@ -149,7 +149,9 @@ def run_capture(
     save_format
         One of :data:`SAVE_FORMATS`.
     separate
-        Separation method for the live layers, or ``None``.
+        Separation method for the live layers, ``"default"`` (the registry's
+        default for the camera's layout, :func:`polcam.separation.default_method`)
+        or ``None``.
     separate_options
         Keyword options of that method, checked against it before the camera
         starts (e.g. ``{"device": "cuda"}``); recorded in the summary.
@@ -224,6 +226,10 @@ def run_capture(
             f"camera {camera.camera_id} sends frames without a known polarizer layout: give --layout "
             "(imx250mzr, imx250myr, mono:A,B,C,D, color:A,B,C,D:BAYER), or --separate none without --rerun"
         )
+    if separate == "default" and layout is not None:  # the registry's default for the sensor
+        from polcam.separation import default_method
+
+        separate = default_method("stack" if layout.is_color else "mono-stack")
     if separate_options and separate is None:
         raise MethodError(f"separation options {sorted(separate_options)} given without a separation method")
     if separate is not None:

@@ -53,9 +53,10 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="calibration file (polcam calibrate) of this camera at these settings: the first "
                         "frame is checked against it, the live view (S0, DoLP, AoLP, layers) uses the "
                         "corrected mosaic; saved frames stay raw. summary.json records the file and its SHA-256")
-    c.add_argument("--separate", default="imin",
-                   help="separation method for the live layers, or none (default imin: every frame; "
-                        "slower methods run on the newest frame whenever the last run is done)")
+    c.add_argument("--separate", default="default",
+                   help="separation method for the live layers, or none; default: the registry's default "
+                        "for the sensor (polcam.separation.default_method, as process uses). imin runs on "
+                        "every frame; other methods run on the newest frame whenever the last run is done")
     c.add_argument("--separate-option", action="append", metavar="KEY=VALUE",
                    help="an option of the --separate method, VALUE as JSON (repeatable), e.g. "
                         "--separate-option device=cuda for the tensor method on a GPU")
