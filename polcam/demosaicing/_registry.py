@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from polcam._names import lookup, ordered
 from polcam.demosaicing._lattice import bilinear_cells
 from polcam.errors import FrameReadError, LayoutError, MethodError
 from polcam.frame import Frame
@@ -86,18 +87,12 @@ def register(name: str, *, cell: DemosaicFn | None = None, mono: bool = True, co
 
 def methods() -> tuple[str, ...]:
     """Registered method names, in polcam's canonical order."""
-    known = [m for m in _ORDER if m in _METHODS]
-    return tuple(known + sorted(m for m in _METHODS if m not in _ORDER))
+    return ordered(_METHODS, _ORDER)
 
 
 def method_spec(name: str) -> MethodSpec:
     """The :class:`MethodSpec` of ``name``; :class:`MethodError` if unknown."""
-    try:
-        return _METHODS[name]
-    except KeyError:
-        raise MethodError(
-            f"demosaicing method {name!r} is unknown; expected one of {', '.join(methods())}"
-        ) from None
+    return lookup(_METHODS, name, what="demosaicing method", order=_ORDER)
 
 
 def default_method(layout: str | Layout) -> str:

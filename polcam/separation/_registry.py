@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from polcam._names import lookup, ordered
 from polcam.errors import MethodError
 
 __all__ = ["Separation", "MethodSpec", "register", "separate", "methods", "method_spec",
@@ -127,18 +128,12 @@ def input_form(shape: Sequence[int]) -> str:
 
 def methods() -> tuple[str, ...]:
     """Registered method names, in polcam's canonical order."""
-    known = [m for m in _ORDER if m in _METHODS]
-    return tuple(known + sorted(m for m in _METHODS if m not in _ORDER))
+    return ordered(_METHODS, _ORDER)
 
 
 def method_spec(name: str) -> MethodSpec:
     """The :class:`MethodSpec` of ``name``; :class:`MethodError` if unknown."""
-    try:
-        return _METHODS[name]
-    except KeyError:
-        raise MethodError(
-            f"separation method {name!r} is unknown; expected one of {', '.join(methods())}"
-        ) from None
+    return lookup(_METHODS, name, what="separation method", order=_ORDER)
 
 
 def _as_input(images: Any) -> tuple[np.ndarray, str]:
