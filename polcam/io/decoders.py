@@ -131,6 +131,20 @@ def _parse_description(text: str, path: Path) -> tuple[dict[str, Any], dict[str,
     return {}, {"description": text}
 
 
+def read_pixels(inp: Any, nchannels: int, fmt: Any, p: Path) -> tuple[Any, dict[str, Any]]:
+    """All pixels of an open OpenImageIO ``inp`` as ``fmt`` and its extra attributes (name -> value).
+
+    Raises :class:`FrameReadError` naming ``p`` when the pixels cannot be read (truncated or corrupt).
+    """
+    arr = inp.read_image(0, 0, 0, nchannels, fmt)
+    err = inp.geterror()
+    if arr is None or err:
+        raise FrameReadError(
+            f"cannot read the pixels (truncated or corrupt file?): {err or 'unknown error'}", path=p
+        )
+    return arr, {a.name: a.value for a in inp.spec().extra_attribs}
+
+
 def _check_nonempty_file(p: Path) -> None:
     if not p.exists():
         raise FrameReadError("file not found", path=p)
@@ -173,13 +187,7 @@ def _read_oiio(p: Path, max_pixels: int = MAX_PIXELS) -> _Decoded:
                 "(raw sensor counts)",
                 path=p,
             )
-        arr = inp.read_image(0, 0, 0, 1, spec.format)
-        err = inp.geterror()
-        if arr is None or err:
-            raise FrameReadError(
-                f"cannot read the pixels (truncated or corrupt file?): {err or 'unknown error'}", path=p
-            )
-        attrs = {a.name: a.value for a in spec.extra_attribs}
+        arr, attrs = read_pixels(inp, 1, spec.format, p)
     finally:
         inp.close()
     mosaic = np.ascontiguousarray(np.asarray(arr).reshape(spec.height, spec.width))

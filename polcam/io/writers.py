@@ -49,6 +49,7 @@ import numpy as np
 from polcam.errors import FrameReadError, FrameWriteError, PixelFormatError
 from polcam.frame import Frame
 from polcam.io.atomic import atomic_path, atomic_write
+from polcam.io.decoders import read_pixels
 from polcam.io.packing import pack
 from polcam.io.readers import deinterleave_angles
 from polcam.io.sidecar import dumps_metadata, json_value, sidecar_path, validate_metadata
@@ -253,13 +254,7 @@ def read_image(path: str | PathLike[str]) -> tuple[np.ndarray, dict[str, Any]]:
         raise FrameReadError(f"cannot read image: {oiio.geterror() or 'unknown error'}", path=p)
     try:
         spec = inp.spec()
-        arr = inp.read_image(0, 0, 0, spec.nchannels, oiio.FLOAT)
-        err = inp.geterror()
-        if arr is None or err:
-            raise FrameReadError(
-                f"cannot read the pixels (truncated or corrupt file?): {err or 'unknown error'}", path=p
-            )
-        attrs = {a.name: a.value for a in spec.extra_attribs}
+        arr, attrs = read_pixels(inp, spec.nchannels, oiio.FLOAT, p)
     finally:
         inp.close()
     image = np.asarray(arr, dtype=np.float32).reshape(spec.height, spec.width, spec.nchannels)
