@@ -1,6 +1,6 @@
 """Applying a calibration: mosaic corrections, then the polarimetric correction.
 
-Where each correction runs (DESIGN.md section 1):
+Where each correction runs (docs/architecture.md draws the stages):
 
 1. On the raw mosaic, before demosaicing (:func:`apply_calibration`): the dark
    map is subtracted (the frame's black level when there is none), the

@@ -23,8 +23,8 @@ Steps as implemented:
    diffuse layer is the input minus it.
 
 Defaults and their sources: ``sigma_spatial = 0.25`` of the smaller image
-side, ``sigma_range = 0.04`` and ``threshold = 0.03`` (the paper's values as
-DESIGN.md section 4 gives them; the authors' released code uses the same
+side, ``sigma_range = 0.04`` and ``threshold = 0.03`` (the paper's values, as
+its constant-time bilateral filter is described; the authors' released code uses the same
 spatial sigma and threshold, and the SIHR toolbox's reproduction, V. S. Ramos,
 Zenodo 3381328, all three);
 ``dark = 20/255`` (the authors' released code, ``QX_DEF_DARK_PIXEL``: pixels whose

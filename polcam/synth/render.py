@@ -710,7 +710,7 @@ def write_scene(rendered: Rendered, out_dir: str | PathLike[str], *, bit_depth: 
     ``raw_imx250mzr.png`` + ``raw_imx250mzr.json``, ``raw_imx250myr.png`` + ``raw_imx250myr.json``
         the raw sensor mosaics (:func:`mosaic`) as ``round(value * (2**bit_depth - 1))``
         counts in a 16-bit PNG (8-bit PNG for ``bit_depth <= 8``), with the
-        DESIGN.md sidecar (layout, width, height, bit_depth, msb_aligned=false,
+        sidecar every raw frame may carry (layout, width, height, bit_depth, msb_aligned=false,
         black_level=0, white_level=2**bit_depth - 1);
     ``scene.json``
         the scene spec and ``rendered.info``, and the file list.

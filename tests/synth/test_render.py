@@ -2,7 +2,7 @@
 
 The references are independent of the renderer: Fresnel degrees of polarization
 in the closed forms of Atkinson & Hancock (IEEE TIP 2006), the geometry of the
-plane of incidence seen by a pinhole camera, and DESIGN.md's sensor cells.
+plane of incidence seen by a pinhole camera, and the sensors' documented cells (docs/cameras.md).
 """
 
 from __future__ import annotations
@@ -308,7 +308,7 @@ def test_mosaic_mono_imx250mzr_samples_the_design_cell() -> None:
     raw = mosaic(stack, "imx250mzr")
     assert raw.shape == (8, 12) and raw.dtype == np.float32
     mono = stack.mean(axis=-1)
-    # DESIGN.md: 2x2 cell row 0 = 90 45, row 1 = 135 0; stack order 0, 45, 90, 135
+    # IMX250MZR: 2x2 cell row 0 = 90 45, row 1 = 135 0; stack order 0, 45, 90, 135
     cell = {(0, 0): 2, (0, 1): 1, (1, 0): 3, (1, 1): 0}
     for (dr, dc), k in cell.items():
         np.testing.assert_allclose(raw[dr::2, dc::2], mono[k, dr::2, dc::2], rtol=1e-6)
@@ -323,7 +323,7 @@ def test_mosaic_mono_imx250mzr_samples_the_design_cell() -> None:
 def test_mosaic_color_imx250myr_samples_angle_and_colour() -> None:
     stack = np.random.default_rng(2).random((4, 8, 8, 3)).astype(np.float32)
     raw = mosaic(stack, "imx250myr")
-    # DESIGN.md 4x4 cell: R90 R45 G90 G45 / R135 R0 G135 G0 / G90 G45 B90 B45 / G135 G0 B135 B0
+    # IMX250MYR 4x4 cell: R90 R45 G90 G45 / R135 R0 G135 G0 / G90 G45 B90 B45 / G135 G0 B135 B0
     ang = {90: 2, 45: 1, 135: 3, 0: 0}
     col = {"R": 0, "G": 1, "B": 2}
     cell = [["R90", "R45", "G90", "G45"], ["R135", "R0", "G135", "G0"],
