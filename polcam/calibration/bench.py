@@ -402,8 +402,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--layouts", nargs="+", default=["imx250mzr", "imx250myr"], help="sensor layouts")
     p.add_argument("--size", type=int, default=128, help="sensor side in pixels (default 128)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--dark-frames", type=int, default=128)
-    p.add_argument("--flat-frames", type=int, default=512)
+    p.add_argument("--dark-frames", type=int, default=128,
+                   help="dark frames averaged into the dark map (default 128)")
+    p.add_argument("--flat-frames", type=int, default=512,
+                   help="flat-field frames averaged into the gain map (default 512)")
     p.add_argument("--angles", type=int, default=16, help="polarizer angles (default 16)")
     p.add_argument("--per-angle", type=int, default=32, help="frames per polarizer angle (default 32)")
     p.add_argument("--scene-frames", type=int, default=16, help="frames averaged for the scene (default 16)")
