@@ -24,7 +24,6 @@ the server runs until Ctrl-C or SIGTERM.
 from __future__ import annotations
 
 import signal
-import subprocess
 import sys
 import threading
 from collections.abc import Callable, Iterator
@@ -186,13 +185,15 @@ def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "
         Exit status: 0.
     """
     from polcam.sinks.rerun import RerunSink
-    from polcam.sinks.rerun_web import WebServer, rerun_executable
+    from polcam.sinks.rerun_web import WebServer, native_viewer
 
     kind = kind_of(path)
     if not web:
         if kind == "rrd":
-            return subprocess.call([rerun_executable(), str(path)])
-        sink = RerunSink("spawn", raw_every=1, view_scale=1.0)
+            native_viewer(recordings=(Path(path),), bind=bind)
+            out(f"{path} opened in the Rerun viewer")
+            return 0
+        sink = RerunSink("spawn", raw_every=1, view_scale=1.0, bind=bind)
         try:
             n = log_path(sink, path)
         finally:

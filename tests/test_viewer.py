@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from polcam.cli import main
-from polcam.errors import FrameReadError
+from polcam.errors import FrameReadError, PolcamError
 from polcam.sinks.rerun import ENTITIES, RerunSink
 from polcam.viewer import kind_of, log_path
 
@@ -186,3 +186,44 @@ def test_binding_another_address_says_who_can_watch(processed):
         proc.wait(30)
         proc.stdout.close()
         proc.stderr.close()
+
+
+@pytest.mark.parametrize("target", ["rrd", "folder"])
+def test_native_viewer_without_a_display_points_to_the_web_viewer(processed, tmp_path, target):
+    import os
+    import subprocess
+    import sys
+
+    if target == "rrd":
+        path = tmp_path / "run.rrd"
+        assert main(["process", str(processed.parent / "raw"), "-o", str(tmp_path / "out"), "--method", "imin",
+                     "--workers", "1", "--quiet", "--rerun", str(path)]) == 0
+    else:
+        path = processed
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")}
+    r = subprocess.run([sys.executable, "-m", "polcam", "view", str(path)], capture_output=True, text=True,
+                       env=env, timeout=60)
+    assert r.returncode == 2 and "no display" in r.stderr and "polcam view --web" in r.stderr
+
+
+def test_the_native_viewer_listens_on_the_address_asked_for(monkeypatch):
+    # the SDK's own spawn listens on every interface: polcam starts the viewer itself, bound
+    from polcam.sinks import rerun_web
+
+    seen: dict[str, list[str]] = {}
+
+    class FakeProc:  # the window cannot open here (no display); the command line is what matters
+        returncode = 1
+
+        def __init__(self, cmd, **kwargs):
+            seen["cmd"] = [str(c) for c in cmd]
+
+        def poll(self):
+            return 1
+
+    monkeypatch.setenv("DISPLAY", ":99")
+    monkeypatch.setattr(rerun_web.subprocess, "Popen", FakeProc)
+    with pytest.raises(PolcamError, match="exited with status 1"):
+        rerun_web.native_viewer(bind="127.0.0.1")
+    cmd = seen["cmd"]
+    assert cmd[cmd.index("--bind") + 1] == "127.0.0.1" and "--port" in cmd

@@ -24,7 +24,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     v.add_argument("--port", type=int, default=9090,
                    help="--web: port of the web viewer (its data use port + 1; default 9090; 0: any free port)")
     v.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
-                   help="--web: address to listen on (default 127.0.0.1, this machine only; 0.0.0.0: "
+                   help="address the viewer's servers listen on (default 127.0.0.1, this machine only; 0.0.0.0: "
                         "anyone on this machine's networks can watch)")
     v.add_argument("--memory-limit", default="1GiB",
                    help="--web: data the server keeps for viewers that connect later (default 1GiB)")

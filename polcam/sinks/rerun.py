@@ -331,8 +331,10 @@ class RerunSink:
         self.server: WebServer | None = None
         rec = rr.RecordingStream(application_id, recording_id=recording_id)
         bp = blueprint()
-        if self.target == "spawn":
-            rec.spawn(default_blueprint=bp)
+        if self.target == "spawn":  # our own viewer process: the SDK's spawn listens on every interface
+            from polcam.sinks.rerun_web import native_viewer
+
+            rec.connect_grpc(native_viewer(bind=bind), default_blueprint=bp)
         elif self.target == "serve":
             self.server = WebServer(bind=bind, port=port, memory_limit=memory_limit)
             self.url = self.server.url

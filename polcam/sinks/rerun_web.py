@@ -20,7 +20,7 @@ import time
 import urllib.parse
 from pathlib import Path
 
-__all__ = ["LOOPBACK", "WebServer", "is_loopback", "rerun_executable"]
+__all__ = ["LOOPBACK", "WebServer", "has_display", "is_loopback", "native_viewer", "rerun_executable"]
 
 
 #: The default address of the web viewer: this machine only.
@@ -208,3 +208,55 @@ class WebServer:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def has_display() -> bool:
+    """Whether a native window can open here: an X11 or Wayland display on Linux (elsewhere: yes)."""
+    import os
+
+    if not sys.platform.startswith("linux"):
+        return True
+    return any(os.environ.get(v) for v in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
+
+
+def native_viewer(*, recordings: tuple[str | Path, ...] = (), bind: str = LOOPBACK,
+                  memory_limit: str = "75%", start_timeout: float = 30.0) -> str:
+    """Start Rerun's native viewer, its data server bound to ``bind``; returns the URL to stream to.
+
+    The SDK's own ``spawn`` starts the viewer listening on every interface; the
+    viewer started here listens on ``bind`` (this machine only by default) on a
+    free port.  It is the user's window: it stays open after polcam ends.
+
+    Raises
+    ------
+    PolcamError
+        No display to open a window on (with the flag that serves the viewer
+        to a browser instead), or the viewer did not start.
+    """
+    from polcam.errors import PolcamError
+
+    if not has_display():
+        raise PolcamError("no display to open the native Rerun viewer on (DISPLAY and WAYLAND_DISPLAY "
+                          "are unset): use the web viewer instead (polcam view --web, "
+                          "polcam capture --rerun serve) and open the URL it prints")
+    (port,) = _free_ports(1)
+    cmd = [rerun_executable(), "--bind", str(bind), "--port", str(port), "--memory-limit", str(memory_limit),
+           *[str(Path(r)) for r in recordings]]
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    probe = LOOPBACK if bind in ("0.0.0.0", "::") or is_loopback(bind) else bind
+    end = time.monotonic() + start_timeout
+    while True:
+        if proc.poll() is not None:
+            raise PolcamError(f"the native Rerun viewer exited with status {proc.returncode} before it "
+                              "opened (no usable display or graphics driver?)")
+        try:
+            socket.create_connection((probe, port), timeout=0.5).close()
+            break
+        except OSError:
+            if time.monotonic() > end:
+                proc.terminate()
+                raise PolcamError(f"the native Rerun viewer did not open port {port} in {start_timeout:.0f} s")
+            time.sleep(0.1)
+    host = f"[{probe}]" if ":" in probe else probe
+    return f"rerun+http://{host}:{port}/proxy"
