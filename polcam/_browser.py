@@ -141,8 +141,10 @@ class open_page:  # noqa: N801 - a context manager used like a function
                 f"--user-data-dir={self._profile}", "--remote-debugging-address=127.0.0.1",
                 "--remote-debugging-port=0", f"--window-size={self.size[0]},{self.size[1]}", self.url]
         try:
+            # its scratch files go inside the profile, so they go with it (the browser is killed)
+            env = {**os.environ, "TMPDIR": self._profile}
             self._proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                          stderr=subprocess.DEVNULL, start_new_session=True)
+                                          stderr=subprocess.DEVNULL, start_new_session=True, env=env)
         except OSError as exc:
             self._cleanup()
             raise BrowserUnavailable(f"{exe} cannot start: {exc}") from exc
