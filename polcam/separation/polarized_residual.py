@@ -192,8 +192,13 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         al = (ee * ga - ge * ea) / dsafe
         be = (gg * ea - ge * ga) / dsafe
         # significant: beyond five times the typical misfit and 3 % of the pixel's intensity
-        take = well & (al * be < 0) & (off > 5.0 * noise + np.maximum(2.0 / 255, 0.03 * np.linalg.norm(ic, axis=-1)))
-        a = np.where(take, np.abs(al), a).astype(np.float32)
+        sig_off = off > 5.0 * noise + np.maximum(2.0 / 255, 0.03 * np.linalg.norm(ic, axis=-1))
+        # also where the diffuse colour's term dominates the amplitudes (a polarized diffuse part with
+        # little or no specular light, e.g. near occluding contours): only a G term of the opposite
+        # sign (perpendicular AoLP) is specular there, so the polarized diffuse light is kept
+        dom = np.abs(be) * np.sqrt(ee) > np.abs(al) * np.sqrt(gg)
+        take = well & sig_off & ((al * be < 0) | dom)
+        a = np.where(take, np.where(al * be < 0, np.abs(al), 0.0), a).astype(np.float32)
         b = np.where(take, np.abs(be), 0.0).astype(np.float32)
     a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
     ub = np.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)

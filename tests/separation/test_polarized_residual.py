@@ -184,3 +184,16 @@ def test_mono_unpolarized_white_kept():
     st = np.repeat(d[None], 4, axis=0)
     res = polcam.separate(st, method="polarized-residual")
     np.testing.assert_allclose(res.diffuse, d, atol=1e-6)
+
+
+def test_polarized_diffuse_without_specular_is_kept():
+    # coloured surfaces whose diffuse light is partly polarized (DoLP 0.15, as near an occluding
+    # contour) and no specular light at all: nothing is removed from the coloured patches
+    d = _scene()
+    st = _stack(d, np.zeros(d.shape[:2]), (1, 1, 1), rho_s=0.0, phi_s=0.3, rho_d=0.15)
+    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    patches = np.zeros(d.shape[:2], bool)
+    patches[9:23, 5:19] = patches[9:23, 25:39] = patches[9:23, 45:59] = True   # inside the red, green, blue
+    np.testing.assert_allclose(res.diffuse[patches], d[patches], atol=2e-3)
+    # imin removes the polarized diffuse light
+    assert np.max(np.abs(polcam.separate(st, method="imin").diffuse[patches] - d[patches])) > 0.02
