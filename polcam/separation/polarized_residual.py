@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from polcam.errors import MethodError
-from polcam.separation._illuminant import estimate_illuminant
+from polcam.separation._illuminant import _SATURATED, estimate_illuminant
 from polcam.separation._registry import register
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "DEFAULTS"]
@@ -293,12 +293,40 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
             sat_w = np.linalg.norm(cb, axis=-1)
             wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)[..., None]
             diffuse = wgt * np.minimum(sf, diffuse) + (1.0 - wgt) * diffuse
+    # saturated pixels (a channel at the white level in all four angles): that channel's polarization
+    # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
+    # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
+    # specular colour allows
+    sat_px = ic.max(axis=-1) >= _SATURATED                   # a channel clipped at all four angles
+    if 0 < int(sat_px.sum()) < sat_px.size // 2:
+        # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
+        # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
+        fill = _inpaint(diffuse, sat_px)
+        t = ((diffuse - fill) @ g) / float(g @ g)
+        diffuse = np.where(sat_px[..., None], np.clip(diffuse - t[..., None] * g, 0.0, ic), diffuse)
     info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor}
     if est is not None:
         info["polarized_colour"] = [float(x) for x in est.polarized]
     return diffuse.astype(np.float32), info
+
+
+def _inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Fill ``img`` ((H, W, C) float >= 0) where ``mask`` ((H, W) bool) from its surroundings.
+
+    Telea's fast-marching method (J. Graphics Tools 9(1), 2004; OpenCV's ``INPAINT_TELEA``) per
+    channel on 16-bit values (``img`` clipped to [0, 1]), radius a fiftieth of the image's larger
+    side (at least 3 pixels).
+    """
+    m = mask.astype(np.uint8)
+    radius = max(3.0, max(mask.shape) / 50.0)
+    out = np.empty_like(img, dtype=np.float32)
+    for c in range(img.shape[-1]):
+        # in 16 bits: OpenCV's float inpainting returns values outside its input's range
+        x = np.round(np.clip(img[..., c], 0.0, 1.0) * 65535.0).astype(np.uint16)
+        out[..., c] = cv2.inpaint(x, m, radius, cv2.INPAINT_TELEA).astype(np.float32) / 65535.0
+    return out
 
 
 def _mono(stack: np.ndarray, opts: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
