@@ -316,11 +316,11 @@ def _inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Fill ``img`` ((H, W, C) float >= 0) where ``mask`` ((H, W) bool) from its surroundings.
 
     Telea's fast-marching method (J. Graphics Tools 9(1), 2004; OpenCV's ``INPAINT_TELEA``) per
-    channel on 16-bit values (``img`` clipped to [0, 1]), radius a fiftieth of the image's larger
-    side (at least 3 pixels).
+    channel on 16-bit values (``img`` clipped to [0, 1]), radius 3 pixels (its cost grows with the
+    radius squared: a fiftieth of the side took seconds on a full-resolution frame).
     """
     m = mask.astype(np.uint8)
-    radius = max(3.0, max(mask.shape) / 50.0)
+    radius = 3.0
     out = np.empty_like(img, dtype=np.float32)
     for c in range(img.shape[-1]):
         # in 16 bits: OpenCV's float inpainting returns values outside its input's range
