@@ -298,6 +298,18 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
     # specular colour allows
     sat_px = ic.max(axis=-1) >= _SATURATED                   # a channel clipped at all four angles
+    if sat_px.any():
+        # only clipped highlights: a clipped region at least 30 % of whose unclipped border (a 2-pixel
+        # ring) shows coherent polarized specular light (step 3); an overexposed diffuse surface has
+        # none around it and is left as measured
+        n_cc, lab = cv2.connectedComponents(sat_px.astype(np.uint8), connectivity=8)
+        lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
+        ring = (lab_d > 0) & ~sat_px
+        hits = np.bincount(lab_d[ring], weights=spec[ring].astype(np.float64), minlength=n_cc)
+        tot = np.bincount(lab_d[ring], minlength=n_cc)
+        keep = hits >= 0.3 * np.maximum(tot, 1)
+        keep[0] = False
+        sat_px = keep[lab]
     if 0 < int(sat_px.sum()) < sat_px.size // 2:
         # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
         # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I

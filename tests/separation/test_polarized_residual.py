@@ -214,3 +214,12 @@ def test_saturated_highlight_is_filled_from_its_neighbours():
     # the polarization minimum keeps the highlight's unpolarized and unmeasured light
     err_imin = np.abs(polcam.separate(st, method="imin").diffuse - d)[clipped]
     assert err_imin.mean() > 3 * err.mean() and err_imin.max() > 3 * err.max()
+
+
+def test_overexposed_diffuse_surface_is_left_as_measured():
+    # a bright matte patch clipped in red, no polarized light around it: not a highlight, not filled
+    d = _scene()
+    d[30:42, 22:42] = (1.3, 0.8, 0.5)
+    st = np.clip(_stack(d, np.zeros(d.shape[:2]), (1, 1, 1), rho_s=0.0, phi_s=0.0), 0.0, 1.0)
+    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    np.testing.assert_allclose(res.diffuse[30:42, 22:42], st.mean(axis=0)[30:42, 22:42], atol=1e-6)
