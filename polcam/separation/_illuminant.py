@@ -87,8 +87,7 @@ def _parts(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
     return s, ic, isv, unsat
 
 
-def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None,
-                     share: float | None = None) -> np.ndarray:
+def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None) -> np.ndarray:
     """Colour of the polarized light, by projection on the neighbourhood's polarization direction.
 
     Each channel's linear polarization ``v_c = (S1_c, S2_c) / eta_c`` is projected on the
@@ -106,8 +105,6 @@ def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None,
         (4, H, W, 3) float in [0, 1].
     efficiency
         (3,) per-colour polarizer efficiency in (0, 1], or None (ideal).
-    share
-        Unused (kept for callers of the earlier, top-share estimator).
 
     Returns
     -------

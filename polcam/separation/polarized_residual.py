@@ -26,6 +26,9 @@ benchmarks behind every choice):
 * Constraints: ``0 <= diffuse <= Imin`` (plus the diffuse light's own
   polarized amplitude where it is found), and a single specular colour ``G``
   for the residual.
+* Clipped highlights (a channel at the white level at all four angles, bordered
+  by polarized specular light): nothing is measured there, so the diffuse is
+  filled from the neighbours' (inpainting) by a multiple of ``G``.
 """
 
 from __future__ import annotations
