@@ -1,4 +1,4 @@
-"""``polcam bench speed``: the tensor method's exact and fast solvers on the same inputs.
+"""``polcam bench speed``: the tensor method's exact and fast solvers on the same inputs (or one other method).
 
 Cases:
 
@@ -15,6 +15,9 @@ Cases:
   from raw to diffuse and specular with the fast solver at the polarizer-cell
   resolution (1224 x 1024 per angle) and, with ``--full-resolution``, at full
   resolution; the seconds include bilinear demosaicing.
+
+With ``--method NAME`` (any registered method, e.g. ``polarized-residual``)
+that method alone is timed on the same cases (one row per case, no exact solver).
 
 Every case runs in a fresh Python process and is timed there around the work
 only.  Peak memory is the largest proportional set size (PSS: shared pages
@@ -41,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from polcam.errors import MethodError
 from polcam.separation.tensor import AUTO_UNTILED_PIXELS
 
 __all__ = ["SpeedRow", "add_arguments", "format_markdown", "main", "measure", "run", "run_args"]
@@ -134,8 +138,8 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
 
     ``case`` keys: ``kind`` (``"scene"`` or ``"frame"``), ``scene``, ``size`` (scene
     side), ``resolution`` (frame: ``"cell"`` or ``"full"``), ``seed``,
-    ``options`` (separation options, e.g. ``{"solver": "exact"}``), ``save``
-    (a .npy path for the diffuse layer, or None).
+    ``options`` (separation options, e.g. ``{"solver": "exact"}``), ``method``
+    (default ``"tensor"``), ``save`` (a .npy path for the diffuse layer, or None).
     """
     import resource
     import time
@@ -145,6 +149,7 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
     from polcam.parallel import start_workers
 
     opts = dict(case.get("options", {}))
+    method = case.get("method", "tensor")
     device_name, cuda = "", False
     if opts.get("device"):
         import torch
@@ -168,7 +173,7 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
         with _PeakMemory() as mem:
             start_workers()  # the sampling thread means a fork server: started before the clock
             t0 = time.perf_counter()
-            res = separate(stack, method="tensor", **opts)
+            res = separate(stack, method=method, **opts)
             seconds = time.perf_counter() - t0
     else:
         from polcam.demosaicing import demosaic
@@ -178,7 +183,7 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
             start_workers()
             t0 = time.perf_counter()
             stack = demosaic(raw, layout="imx250myr", method="bilinear", resolution=case["resolution"])
-            res = separate(stack, method="tensor", **opts)
+            res = separate(stack, method=method, **opts)
             seconds = time.perf_counter() - t0
     device_peak = float("nan")
     if cuda:
@@ -222,8 +227,8 @@ def _child(case: dict[str, Any]) -> dict[str, Any]:
 def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bunny4",),
         exact_max: int = 256, frame: bool = True, full_resolution: bool = False,
         frame_scene: str = "Bunny5", options: dict[str, Any] | None = None, seed: int = 0,
-        progress: bool = True, isolate: bool = True) -> list[SpeedRow]:
-    """Time the exact and fast solvers.
+        progress: bool = True, isolate: bool = True, method: str = "tensor") -> list[SpeedRow]:
+    """Time the exact and fast solvers (or one other method).
 
     Parameters
     ----------
@@ -246,20 +251,29 @@ def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bun
     isolate
         Run each case in a fresh process (for its own peak memory); False runs
         them here (tests).
+    method
+        ``"tensor"`` (the exact and fast solvers), or another registered method,
+        timed alone with ``options`` as its options.
 
     Returns
     -------
     list of SpeedRow
     """
-    fast_opts = {"solver": "fast", **(options or {})}
+    from polcam.separation._registry import method_spec
+
+    method_spec(method)                              # unknown names refused before any work
+    fast_opts = {"solver": "fast", **(options or {})} if method == "tensor" else dict(options or {})
     rows: list[SpeedRow] = []
     go = _child if isolate else measure
     with tempfile.TemporaryDirectory() as tmp:
         cases: list[tuple[str, str, dict[str, Any]]] = []
         for name in scenes:
             for size in sizes:
-                base = {"kind": "scene", "scene": name, "size": int(size), "seed": seed}
+                base = {"kind": "scene", "scene": name, "size": int(size), "seed": seed, "method": method}
                 label = f"{name} {size}x{size}"
+                if method != "tensor":
+                    cases.append((label, method, {**base, "options": fast_opts}))
+                    continue
                 if size <= exact_max:
                     cases.append((label, "exact", {**base, "options": {"solver": "exact"}}))
                 cases.append((label, "fast", {**base, "options": fast_opts}))
@@ -268,9 +282,9 @@ def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bun
                     cases.append((label, "fast, one tile", {**base, "options": {**fast_opts, "tile": size}}))
         if frame:
             for res_name in ("cell",) + (("full",) if full_resolution else ()):
-                cases.append((f"2448x2048 raw, {res_name} resolution", "fast",
+                cases.append((f"2448x2048 raw, {res_name} resolution", "fast" if method == "tensor" else method,
                               {"kind": "frame", "scene": frame_scene, "resolution": res_name,
-                               "seed": seed, "options": fast_opts}))
+                               "seed": seed, "options": fast_opts, "method": method}))
         exact_rows: dict[str, tuple[SpeedRow, str]] = {}
         for n, (label, solver, case) in enumerate(cases):
             path = str(Path(tmp) / f"{n}.npy")
@@ -351,6 +365,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--full-resolution", action="store_true",
                    help="also the full frame at full resolution (2448 x 2048 per angle)")
     p.add_argument("--frame-scene", default="Bunny5", help="scene rendered for the sensor frame (default Bunny5)")
+    p.add_argument("--method", default="tensor",
+                   help="method timed (default tensor: its exact and fast solvers; another method is "
+                        "timed alone, e.g. polarized-residual)")
     p.add_argument("--device", help="PyTorch device for the fast solver (default: numpy)")
     p.add_argument("--tol", type=float, help="stopping tolerance of the fast solver")
     p.add_argument("--workers", type=int, help="worker processes / threads (default: CPU count)")
@@ -361,6 +378,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run_args(a: argparse.Namespace) -> int:
     """Run ``polcam bench speed`` with parsed options; print the table."""
     options: dict[str, Any] = {}
+    if a.method != "tensor" and (a.device or a.tol is not None or a.workers is not None):
+        raise MethodError(f"bench speed: --device, --tol and --workers are the tensor method's options, "
+                          f"not {a.method!r}'s")
     if a.device:
         options["device"] = a.device
     if a.tol is not None:
@@ -370,7 +390,7 @@ def run_args(a: argparse.Namespace) -> int:
     print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
     rows = run(sizes=a.sizes, scenes=a.scenes, exact_max=a.exact_max, frame=not a.no_frame,
                full_resolution=a.full_resolution, frame_scene=a.frame_scene, options=options,
-               seed=a.seed)
+               seed=a.seed, method=a.method)
     names = sorted({r.device for r in rows if r.device})
     if names:
         print(f"device: {', '.join(names)}")

@@ -2,9 +2,10 @@
 
 Specular reflection from a dielectric has the illuminant's colour (neutral
 interface reflection) and is (partly) polarized; diffuse reflection is nearly
-unpolarized.  So the colour of the polarized light, the per-channel amplitude
-``Isv`` of the polarization sinusoid summed over the most polarized pixels, is
-the classic estimate of the illuminant (:func:`polarized_colour`).  It is
+unpolarized.  So the colour of the polarized light is the classic estimate of
+the illuminant (:func:`polarized_colour`: each channel's linear polarization
+projected on its neighbourhood's polarization direction and summed, which
+noise does not bias).  It is
 right only when every colour channel's polarizer is equally efficient: a
 polarizer of efficiency ``eta_c`` (the diattenuation, 1 for an ideal one)
 measures ``eta_c Isv_c``.  Real wire-grid polarizers (on-chip ones too) have a
@@ -86,9 +87,17 @@ def _parts(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
     return s, ic, isv, unsat
 
 
-def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None,
-                     share: float = 0.05) -> np.ndarray:
-    """Colour of the polarized light: ``Isv / efficiency`` summed over the most polarized pixels.
+def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None) -> np.ndarray:
+    """Colour of the polarized light, by projection on the neighbourhood's polarization direction.
+
+    Each channel's linear polarization ``v_c = (S1_c, S2_c) / eta_c`` is projected on the
+    polarization direction of the pixel's 8 neighbours (their channel-summed ``v``) and the
+    projections are summed over unsaturated pixels
+    (:func:`polcam.separation.tensor.operators.estimate_illuminant`, which this calls): zero-mean
+    noise, independent between pixels, averages out instead of adding a positive bias in the
+    colour of the brightest channel, as a sum of amplitudes ``Isv`` over the most polarized
+    pixels did (measured in docs/benchmarks.md: 7.6 against 1.8 degrees from the planted light on
+    Bunny1).
 
     Parameters
     ----------
@@ -96,25 +105,17 @@ def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None,
         (4, H, W, 3) float in [0, 1].
     efficiency
         (3,) per-colour polarizer efficiency in (0, 1], or None (ideal).
-    share
-        The pixels whose polarized amplitude (summed over RGB) is in the top
-        ``share`` among unsaturated pixels are used.
 
     Returns
     -------
     numpy.ndarray
-        (3,) float64 with mean 1 (ones when nothing is polarized).
+        (3,) float64 with mean 1 (ones when the polarization is not significant).
     """
-    _, _, isv, unsat = _parts(stack)
-    if efficiency is not None:
-        isv = isv / _check_efficiency(efficiency)
-    tot = isv.sum(axis=-1)
-    cand = tot[unsat] if unsat.any() else tot.reshape(-1)
-    vals = isv[unsat] if unsat.any() else isv.reshape(-1, 3)
-    if cand.size == 0 or not cand.max() > 0:
-        return np.ones(3)
-    sel = cand >= np.quantile(cand, 1.0 - share)
-    return _unit_mean(vals[sel].sum(axis=0, dtype=np.float64))
+    from polcam.separation.tensor.operators import estimate_illuminant as _projected
+
+    _parts(stack)  # shape check
+    eff = None if efficiency is None else _check_efficiency(efficiency)
+    return _unit_mean(_projected(stack, efficiency=eff))
 
 
 def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:

@@ -26,6 +26,9 @@ benchmarks behind every choice):
 * Constraints: ``0 <= diffuse <= Imin`` (plus the diffuse light's own
   polarized amplitude where it is found), and a single specular colour ``G``
   for the residual.
+* Clipped highlights (a channel at the white level at all four angles, bordered
+  by polarized specular light): nothing is measured there, so the diffuse is
+  filled from the neighbours' (inpainting) by a multiple of ``G``.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import cv2
 import numpy as np
 
 from polcam.errors import MethodError
-from polcam.separation._illuminant import estimate_illuminant
+from polcam.separation._illuminant import _SATURATED, estimate_illuminant
 from polcam.separation._registry import register
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "DEFAULTS"]
@@ -192,8 +195,13 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         al = (ee * ga - ge * ea) / dsafe
         be = (gg * ea - ge * ga) / dsafe
         # significant: beyond five times the typical misfit and 3 % of the pixel's intensity
-        take = well & (al * be < 0) & (off > 5.0 * noise + np.maximum(2.0 / 255, 0.03 * np.linalg.norm(ic, axis=-1)))
-        a = np.where(take, np.abs(al), a).astype(np.float32)
+        sig_off = off > 5.0 * noise + np.maximum(2.0 / 255, 0.03 * np.linalg.norm(ic, axis=-1))
+        # also where the diffuse colour's term dominates the amplitudes (a polarized diffuse part with
+        # little or no specular light, e.g. near occluding contours): only a G term of the opposite
+        # sign (perpendicular AoLP) is specular there, so the polarized diffuse light is kept
+        dom = np.abs(be) * np.sqrt(ee) > np.abs(al) * np.sqrt(gg)
+        take = well & sig_off & ((al * be < 0) | dom)
+        a = np.where(take, np.where(al * be < 0, np.abs(al), 0.0), a).astype(np.float32)
         b = np.where(take, np.abs(be), 0.0).astype(np.float32)
     a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
     ub = np.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)
@@ -288,12 +296,52 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
             sat_w = np.linalg.norm(cb, axis=-1)
             wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)[..., None]
             diffuse = wgt * np.minimum(sf, diffuse) + (1.0 - wgt) * diffuse
+    # saturated pixels (a channel at the white level in all four angles): that channel's polarization
+    # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
+    # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
+    # specular colour allows
+    sat_px = ic.max(axis=-1) >= _SATURATED                   # a channel clipped at all four angles
+    if sat_px.any():
+        # only clipped highlights: a clipped region at least 30 % of whose unclipped border (a 2-pixel
+        # ring) shows coherent polarized specular light (step 3); an overexposed diffuse surface has
+        # none around it and is left as measured
+        n_cc, lab = cv2.connectedComponents(sat_px.astype(np.uint8), connectivity=8)
+        lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
+        ring = (lab_d > 0) & ~sat_px
+        hits = np.bincount(lab_d[ring], weights=spec[ring].astype(np.float64), minlength=n_cc)
+        tot = np.bincount(lab_d[ring], minlength=n_cc)
+        keep = hits >= 0.3 * np.maximum(tot, 1)
+        keep[0] = False
+        sat_px = keep[lab]
+    if 0 < int(sat_px.sum()) < sat_px.size // 2:
+        # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
+        # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
+        fill = _inpaint(diffuse, sat_px)
+        t = ((diffuse - fill) @ g) / float(g @ g)
+        diffuse = np.where(sat_px[..., None], np.clip(diffuse - t[..., None] * g, 0.0, ic), diffuse)
     info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor}
     if est is not None:
         info["polarized_colour"] = [float(x) for x in est.polarized]
     return diffuse.astype(np.float32), info
+
+
+def _inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Fill ``img`` ((H, W, C) float >= 0) where ``mask`` ((H, W) bool) from its surroundings.
+
+    Telea's fast-marching method (J. Graphics Tools 9(1), 2004; OpenCV's ``INPAINT_TELEA``) per
+    channel on 16-bit values (``img`` clipped to [0, 1]), radius 3 pixels (its cost grows with the
+    radius squared: a fiftieth of the side took seconds on a full-resolution frame).
+    """
+    m = mask.astype(np.uint8)
+    radius = 3.0
+    out = np.empty_like(img, dtype=np.float32)
+    for c in range(img.shape[-1]):
+        # in 16 bits: OpenCV's float inpainting returns values outside its input's range
+        x = np.round(np.clip(img[..., c], 0.0, 1.0) * 65535.0).astype(np.uint16)
+        out[..., c] = cv2.inpaint(x, m, radius, cv2.INPAINT_TELEA).astype(np.float32) / 65535.0
+    return out
 
 
 def _mono(stack: np.ndarray, opts: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:

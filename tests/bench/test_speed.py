@@ -27,6 +27,22 @@ def test_run_pairs_exact_and_fast_on_the_same_input():
     assert md.count("\n") == 4 and "| Bunny4 24x24 | exact | 24 x 24 |" in md
 
 
+def test_another_method_is_timed_alone():
+    rows = run(sizes=(32,), scenes=("Bunny4",), frame=False, isolate=False, progress=False,
+               method="polarized-residual")
+    assert [(r.case, r.solver) for r in rows] == [("Bunny4 32x32", "polarized-residual")]
+    r = rows[0]
+    assert (r.height, r.width) == (32, 32) and r.seconds > 0 and r.options == {}
+    # its diffuse is scored against the truth like the tensor solver's
+    assert 15 < r.psnr < 80 and np.isnan(r.speedup)
+    from polcam.errors import MethodError
+
+    with pytest.raises(MethodError, match="no-such"):
+        run(sizes=(32,), frame=False, isolate=False, progress=False, method="no-such")
+    with pytest.raises(MethodError, match="tensor method's options"):
+        main(["--method", "imin", "--tol", "1e-3", "--no-frame", "--sizes", "16"])
+
+
 def test_measure_reports_the_options_it_ran_with(tmp_path):
     got = measure({"kind": "scene", "scene": "Bunny1", "size": 24,
                    "options": {"solver": "fast", "tile": 12, "overlap": 0, "workers": 1},

@@ -28,6 +28,20 @@ def test_polarized_colour_is_the_planted_light():
     np.testing.assert_allclose(polarized_colour(np.full((4, 8, 8, 3), 0.4)), 1.0)
 
 
+def test_polarized_colour_is_not_biased_by_noise():
+    # white light on a red matte surface, noisy: a sum of per-pixel amplitudes Isv over the most
+    # polarized pixels takes the noise's positive bias, largest in the brightest (red) channel
+    rng = np.random.default_rng(3)
+    st = _stack((1, 1, 1), diffuse=(0.6, 0.15, 0.1), rho=0.1)     # a weakly polarized highlight
+    noisy = np.clip(st + rng.normal(0.0, 0.01, st.shape) * np.sqrt(st / 0.5), 0.0, 1.0)   # shot noise
+    got = polarized_colour(noisy)
+    np.testing.assert_allclose(got, 1.0, atol=0.07)
+    isv = 0.5 * np.hypot(noisy[0] - noisy[2], noisy[1] - noisy[3])
+    tot = isv.sum(axis=-1)
+    naive = isv[tot >= np.quantile(tot, 0.95)].sum(axis=0)
+    assert np.max(np.abs(naive / naive.mean() - 1.0)) > 2 * np.max(np.abs(got - 1.0))
+
+
 def test_efficiency_divides_the_polarized_amplitude():
     eff = np.array([0.5, 0.8, 1.0])
     st = _stack((1, 1, 1), eff=eff)

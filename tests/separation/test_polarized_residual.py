@@ -184,3 +184,42 @@ def test_mono_unpolarized_white_kept():
     st = np.repeat(d[None], 4, axis=0)
     res = polcam.separate(st, method="polarized-residual")
     np.testing.assert_allclose(res.diffuse, d, atol=1e-6)
+
+
+def test_polarized_diffuse_without_specular_is_kept():
+    # coloured surfaces whose diffuse light is partly polarized (DoLP 0.15, as near an occluding
+    # contour) and no specular light at all: nothing is removed from the coloured patches
+    d = _scene()
+    st = _stack(d, np.zeros(d.shape[:2]), (1, 1, 1), rho_s=0.0, phi_s=0.3, rho_d=0.15)
+    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    patches = np.zeros(d.shape[:2], bool)
+    patches[9:23, 5:19] = patches[9:23, 25:39] = patches[9:23, 45:59] = True   # inside the red, green, blue
+    np.testing.assert_allclose(res.diffuse[patches], d[patches], atol=2e-3)
+    # imin removes the polarized diffuse light
+    assert np.max(np.abs(polcam.separate(st, method="imin").diffuse[patches] - d[patches])) > 0.02
+
+
+def test_saturated_highlight_is_filled_from_its_neighbours():
+    # a strong highlight clips the red channel at all four angles: its polarization there is not
+    # measured, and the diffuse of the clipped pixels comes from their neighbours
+    h, w = 48, 64
+    d = np.broadcast_to(np.array([0.6, 0.3, 0.2]), (h, w, 3)).copy()
+    spec = 0.8 * _bump(h, w, 24, 32, 4)
+    st = np.clip(_stack(d, spec, (1, 1, 1), rho_s=0.3, phi_s=0.5), 0.0, 1.0)
+    clipped = st.mean(axis=0).max(axis=-1) >= 0.98
+    assert 10 < clipped.sum() < 200
+    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    err = np.abs(res.diffuse - d)[clipped]
+    assert err.mean() < 0.12
+    # the polarization minimum keeps the highlight's unpolarized and unmeasured light
+    err_imin = np.abs(polcam.separate(st, method="imin").diffuse - d)[clipped]
+    assert err_imin.mean() > 3 * err.mean() and err_imin.max() > 3 * err.max()
+
+
+def test_overexposed_diffuse_surface_is_left_as_measured():
+    # a bright matte patch clipped in red, no polarized light around it: not a highlight, not filled
+    d = _scene()
+    d[30:42, 22:42] = (1.3, 0.8, 0.5)
+    st = np.clip(_stack(d, np.zeros(d.shape[:2]), (1, 1, 1), rho_s=0.0, phi_s=0.0), 0.0, 1.0)
+    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    np.testing.assert_allclose(res.diffuse[30:42, 22:42], st.mean(axis=0)[30:42, 22:42], atol=1e-6)

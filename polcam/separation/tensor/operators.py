@@ -47,7 +47,9 @@ def illuminant(stack: Any, option: Any) -> np.ndarray:
     """The illuminant chromaticity the driver normalises by: the ``illuminant`` option's meaning.
 
     The one place the tensor method's driver asks for the illuminant:
-    ``"polarization"`` estimates it from the stack (:func:`estimate_illuminant`),
+    ``"polarization"`` estimates it from the stack (the polarized light's colour,
+    :func:`estimate_illuminant`, checked against the highlights' own colour by
+    :func:`polcam.separation._illuminant.estimate_illuminant`),
     ``"white"`` is (1/3, 1/3, 1/3), and an RGB triple is taken as given.
 
     Parameters
@@ -64,7 +66,12 @@ def illuminant(stack: Any, option: Any) -> np.ndarray:
     """
     if isinstance(option, str):
         if option == "polarization":
-            return estimate_illuminant(stack)
+            # the polarized light's colour checked against the highlights' (polcam.separation._illuminant):
+            # right on the real stacks where the polarized colour alone is not (docs/benchmarks.md)
+            from polcam.separation._illuminant import estimate_illuminant as _checked
+
+            col = _checked(namespace(stack).to_numpy(stack)).colour
+            return col / col.sum()
         if option == "white":
             return np.full(3, 1 / 3)
         raise MethodError(f"illuminant {option!r}: expected 'polarization', 'white' or an RGB triple")
@@ -72,7 +79,7 @@ def illuminant(stack: Any, option: Any) -> np.ndarray:
     return gam / gam.sum()
 
 
-def estimate_illuminant(stack: Any, *, significance: float = 5.0) -> np.ndarray:
+def estimate_illuminant(stack: Any, *, significance: float = 5.0, efficiency: Any = None) -> np.ndarray:
     """Illuminant chromaticity from the polarized light.
 
     Diffuse reflection is (close to) unpolarized, so the linear polarization
@@ -98,6 +105,8 @@ def estimate_illuminant(stack: Any, *, significance: float = 5.0) -> np.ndarray:
         (4, H, W, 3) float in [0, 1] (numpy or torch; computed in float64).
     significance
         How many standard deviations of the noise the signal must exceed.
+    efficiency
+        (3,) per-colour polarizer efficiency in (0, 1] (``v_c`` is divided by it), or None (ideal).
 
     Returns
     -------
@@ -107,6 +116,8 @@ def estimate_illuminant(stack: Any, *, significance: float = 5.0) -> np.ndarray:
     xp = namespace(stack)
     x = xp.astype(stack, xp.float64)
     v = xp.stack([x[0] - x[2], x[1] - x[3]], axis=-1)          # (H, W, 3, 2)
+    if efficiency is not None:
+        v = v / xp.asarray(np.asarray(efficiency, np.float64).reshape(3, 1), like=v)
     vs = xp.sum(v, axis=2)                                      # (H, W, 2)
     h, w = vs.shape[:2]
     p = xp.pad_hw(vs, 1, 0.0)                                   # zeros outside
