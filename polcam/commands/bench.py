@@ -59,7 +59,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                                    "demosaicing quality and speed against ground truth, beside polanalyser. "
                                    "sihr: the single-image highlight-removal methods on the Shen 2013 images "
                                    "against the published PSNR/SSIM table. quality: every separation method on "
-                                   "the synthetic scenes. speed: the tensor method's exact and fast solvers. "
+                                   "the synthetic scenes. speed: a separation method's time (by default the tensor method's "
+                                   "exact and fast solvers). "
                                    "calibration: dark, flat and polarizer calibration on a synthetic imperfect "
                                    "sensor. real: every colour method on real colour-polarization stacks, "
                                    "judged by physics.")
@@ -91,7 +92,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     from polcam.bench import speed as _speed
     from polcam.calibration import bench as _cal_bench
 
-    bp = bsub.add_parser("speed", help="the tensor method's exact and fast solvers",
+    bp = bsub.add_parser("speed", help="separation speed (the tensor method's solvers; --method for others)",
                          description="The tensor method's exact and fast solvers on the same inputs: seconds, "
                                      "speed ratio, PSNR difference, iterations and peak memory on synthetic "
                                      "scenes, and the fast solver on a full 2448 x 2048 sensor frame from raw "
