@@ -99,6 +99,12 @@ class NumpyXP:
     @staticmethod
     def div(a: Any, b: Any, out: np.ndarray) -> np.ndarray:
         return np.divide(a, b, out=out)
+
+    @staticmethod
+    def divide_where(a: np.ndarray, b: np.ndarray, ok: np.ndarray, fill: float) -> np.ndarray:
+        """``a / b`` where ``ok``, ``fill`` elsewhere (broadcast), never dividing outside ``ok``."""
+        out = np.full(np.broadcast_shapes(a.shape, b.shape, ok.shape), fill, dtype=np.result_type(a, b))
+        return np.divide(a, b, out=out, where=ok)
     exp = staticmethod(np.exp)
     floor = staticmethod(np.floor)
     hypot = staticmethod(np.hypot)
@@ -253,6 +259,9 @@ class TorchXP:
             return self.torch.mul(self.torch.reciprocal(b), a, out=out)
         return self.torch.div(a, b, out=out)
 
+    def divide_where(self, a: Any, b: Any, ok: Any, fill: float) -> Any:
+        return self.where(ok, a / self.where(ok, b, 1.0), fill)
+
     def exp(self, a: Any, out: Any = None) -> Any:
         return self.torch.exp(a) if out is None else self.torch.exp(a, out=out)
 
@@ -285,6 +294,10 @@ class TorchXP:
         return bool(a.is_floating_point())
 
     def clip(self, a: Any, lo: Any, hi: Any, out: Any = None) -> Any:
+        t = self.torch
+        if isinstance(lo, t.Tensor) != isinstance(hi, t.Tensor):      # clamp takes two numbers or two tensors
+            lo, hi = (v if isinstance(v, t.Tensor) else t.as_tensor(v, dtype=a.dtype, device=a.device)
+                      for v in (lo, hi))
         if out is None:
             return self.torch.clamp(a, lo, hi)
         if out is not a:

@@ -250,8 +250,8 @@ class JointBilateral:
             k_base = k_idx * (gh * gw)
             for yy, wy in ((y0, 1.0 - ty), (y1, ty)):
                 for xx, wx in ((x0, 1.0 - tx), (x1, tx)):
-                    idx[j] = k_base + ((yy * gw)[:, None] + xx[None, :])
-                    wgt[j] = k_w * (wy[:, None] * wx[None, :])
+                    xp.add(k_base, (yy * gw)[:, None] + xx[None, :], out=idx[j])
+                    xp.mul(k_w, wy[:, None] * wx[None, :], out=wgt[j])
                     j += 1
         self._idx = idx
         # Components with no weight within reach are undefined: those corners

@@ -160,8 +160,7 @@ def safe_divide(num: Any, den: Any, *, fill: float = 0.0, eps: float = EPS) -> n
     """
     xp, num = _float64(num)
     den = xp.asarray(den, like=num, dtype=xp.float64)
-    ok = abs(den) > eps
-    return xp.where(ok, num / xp.where(ok, den, 1.0), float(fill))
+    return xp.divide_where(num, den, abs(den) > eps, float(fill))
 
 
 def chromaticity(image: np.ndarray, *, fill: float = 1.0 / 3.0) -> np.ndarray:
@@ -239,7 +238,7 @@ def specular_free_chromaticity(image: np.ndarray) -> np.ndarray:
     # intensity is achromatic to numerical precision.
     scale = channel_sum(image)[..., None]
     ok = total > xp.clamp_min(1e-9 * scale, EPS)
-    return xp.where(ok, free / xp.where(ok, total, 1.0), 1.0 / 3.0)
+    return xp.divide_where(free, total, ok, 1.0 / 3.0)
 
 
 def diffuse_from_max_chromaticity(
@@ -322,4 +321,4 @@ def finish_diffuse(diffuse: np.ndarray, image: np.ndarray) -> np.ndarray:
         become 0.
     """
     xp, diffuse = _float64(diffuse)
-    return xp.minimum(xp.clamp_min(xp.nan_to_num(diffuse), 0.0), xp.asarray(image, like=diffuse))
+    return xp.clip(xp.nan_to_num(diffuse), 0.0, xp.asarray(image, like=diffuse))
