@@ -5,11 +5,10 @@ The tensor method's operators, tiling and IALM loop
 (:mod:`polcam.filters`), Yang'10 (:mod:`polcam.separation.yang10`) and the
 helpers it shares (:mod:`polcam.separation._common`) are written once, against
 the small set of functions below; :func:`namespace` picks the set from the type
-of an array.  Only names
-whose spelling differs between numpy and PyTorch are here (``axis`` against
-``dim``, ``clip`` against ``clamp``, ``out=`` forms); operators both spell the
-same (``+``, ``*=``, slicing, ``reshape``, ``sum`` without an axis) are used
-directly.
+of an array.  Only names whose spelling differs between numpy and PyTorch are
+here (``axis`` against ``dim``, ``clip`` against ``clamp``, ``out=`` and
+``where=`` forms); operators both spell the same (``+``, ``*=``, ``@``,
+slicing, ``reshape``, ``sum`` without an axis) are used directly.
 """
 
 from __future__ import annotations
@@ -105,6 +104,7 @@ class NumpyXP:
         """``a / b`` where ``ok``, ``fill`` elsewhere (broadcast), never dividing outside ``ok``."""
         out = np.full(np.broadcast_shapes(a.shape, b.shape, ok.shape), fill, dtype=np.result_type(a, b))
         return np.divide(a, b, out=out, where=ok)
+
     exp = staticmethod(np.exp)
     floor = staticmethod(np.floor)
     hypot = staticmethod(np.hypot)

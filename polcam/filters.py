@@ -40,9 +40,8 @@ same operator as two banded matrices on a torch device.
 from __future__ import annotations
 
 import math
-from typing import Any
-
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
@@ -134,7 +133,8 @@ class JointBilateral:
     guide
         (H, W) float, finite: a numpy array, or a ``torch.Tensor`` to filter
         on its device (every array the object makes and returns is then a
-        float64 tensor there).
+        float64 tensor there; the range levels, ``.levels``, stay a numpy
+        array).
     sigma_spatial
         Spatial Gaussian sigma in pixels, > 0.
     sigma_range
