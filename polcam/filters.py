@@ -29,20 +29,28 @@ bilinearly; unlike their point subsampling, polcam sums the weighted image
 over each grid cell (area splatting), so every pixel contributes.
 
 opencv-python-headless has no ``cv2.ximgproc``, hence this module.
+
+The filter is written once over the array namespace of :mod:`polcam._xp`: a
+numpy guide gives numpy results, a ``torch.Tensor`` guide runs on its device
+(float64).  The one step that differs is the Gaussian blur of the coarse
+grid (:func:`_grid_blur`): ``scipy.ndimage.gaussian_filter`` in numpy, the
+same operator as two banded matrices on a torch device.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from scipy import ndimage
 
+from polcam._xp import namespace
 from polcam.errors import MethodError
 
-__all__ = ["MAX_AUTO_LEVELS", "MIN_GRID_SIGMA", "TRUNCATE", "JointBilateral", "auto_levels", "interp_weights",
-           "joint_bilateral"]
+__all__ = ["MAX_AUTO_LEVELS", "MIN_GRID_SIGMA", "TRUNCATE", "JointBilateral", "auto_levels", "gaussian_matrix",
+           "interp_weights", "joint_bilateral"]
 
 #: Smallest spatial sigma, in grid cells, the coarse grid may leave.
 MIN_GRID_SIGMA = 6.0
@@ -76,6 +84,42 @@ def interp_weights(n_full: int, n_grid: int, factor: int) -> tuple[np.ndarray, n
     return i0.astype(np.intp), i1.astype(np.intp), t
 
 
+def gaussian_matrix(n: int, sigma: float) -> np.ndarray:
+    """(n, n) matrix of scipy's ``gaussian_filter1d`` (mode 'constant', cval 0, :data:`TRUNCATE`).
+
+    Row ``i`` holds the weights of the samples ``j`` that output ``i`` sums:
+    the normalised Gaussian of ``j - i``, zero beyond ``int(TRUNCATE sigma +
+    0.5)`` and outside ``[0, n)``.
+    """
+    radius = int(TRUNCATE * sigma + 0.5)
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    k = np.exp(-0.5 / (sigma * sigma) * x * x)
+    k /= k.sum()
+    d = np.arange(n)[None, :] - np.arange(n)[:, None]
+    return np.where(np.abs(d) <= radius, k[np.clip(d + radius, 0, 2 * radius)], 0.0)
+
+
+def _grid_blur(xp: Any, grid_shape: tuple[int, int], sigma: float, like: Any) -> Callable[[Any], Any]:
+    """The spatial Gaussian of a (K, gh, gw) stack of grid levels, zero outside the grid.
+
+    The one per-backend kernel of the filter.  numpy: scipy's separable
+    ``gaussian_filter`` on each level, in place (its cost grows with the
+    kernel's radius, not the grid's side).  torch: ``M_y s M_x^T`` with the
+    banded matrices of :func:`gaussian_matrix`, one batched product (what a
+    device runs fast; the coarse grid keeps them small).  The two agree to
+    rounding (tests/test_filters.py).
+    """
+    if xp.name == "numpy":
+        def blur(s: np.ndarray) -> np.ndarray:
+            for k in range(s.shape[0]):
+                s[k] = ndimage.gaussian_filter(s[k], sigma, mode="constant", cval=0.0, truncate=TRUNCATE)
+            return s
+        return blur
+    my = xp.asarray(gaussian_matrix(grid_shape[0], sigma), like=like, dtype=like.dtype)
+    mxt = xp.asarray(gaussian_matrix(grid_shape[1], sigma).T, like=like, dtype=like.dtype)
+    return lambda s: my @ s @ mxt
+
+
 class JointBilateral:
     """A joint bilateral filter bound to one guide image.
 
@@ -87,7 +131,10 @@ class JointBilateral:
     Parameters
     ----------
     guide
-        (H, W) float, finite.
+        (H, W) float, finite: a numpy array, or a ``torch.Tensor`` to filter
+        on its device (every array the object makes and returns is then a
+        float64 tensor there; the range levels, ``.levels``, stay a numpy
+        array).
     sigma_spatial
         Spatial Gaussian sigma in pixels, > 0.
     sigma_range
@@ -120,10 +167,11 @@ class JointBilateral:
         weights: Any = None,
         downsample: int | None = None,
     ) -> None:
-        g = np.asarray(guide, dtype=np.float64)
-        if g.ndim != 2 or g.size == 0:
-            raise MethodError(f"joint bilateral guide of shape {g.shape}: expected a non-empty (H, W) image")
-        if not np.all(np.isfinite(g)):
+        self.xp = xp = namespace(guide)
+        g = xp.asarray(guide, dtype=xp.float64)
+        if g.ndim != 2 or 0 in g.shape:
+            raise MethodError(f"joint bilateral guide of shape {tuple(g.shape)}: expected a non-empty (H, W) image")
+        if not bool(xp.isfinite(g).all()):
             raise MethodError("joint bilateral guide contains NaN or infinite values")
         if not (np.isfinite(sigma_spatial) and sigma_spatial > 0):
             raise MethodError(f"sigma_spatial={sigma_spatial!r}: expected a positive number of pixels")
@@ -135,12 +183,12 @@ class JointBilateral:
             raise MethodError(f"downsample={downsample!r}: expected an integer >= 1")
         h, w = g.shape
         if weights is None:
-            wts = np.ones_like(g)
+            wts = xp.zeros((h, w), like=g) + 1.0
         else:
-            wts = np.asarray(weights, dtype=np.float64)
+            wts = xp.asarray(weights, like=g, dtype=xp.float64)
             if wts.shape != g.shape:
-                raise MethodError(f"weights of shape {wts.shape}: expected the guide's shape {g.shape}")
-            if not np.all(np.isfinite(wts)) or wts.min() < 0:
+                raise MethodError(f"weights of shape {tuple(wts.shape)}: expected the guide's shape {(h, w)}")
+            if not bool(xp.isfinite(wts).all()) or float(wts.min()) < 0:
                 raise MethodError("weights must be finite and non-negative")
         self.shape = (h, w)
         self.sigma_spatial = float(sigma_spatial)
@@ -157,6 +205,7 @@ class JointBilateral:
         if gmax - gmin <= 0:
             n_levels = 1
         self.levels = np.linspace(gmin, gmax, n_levels) if n_levels > 1 else np.array([gmin])
+        levels_a = xp.asarray(self.levels, like=g)
 
         # Range weights of every level times the confidences.  With a coarse
         # grid they are laid out cell by cell, (cells, K, factor^2), for the
@@ -166,100 +215,102 @@ class JointBilateral:
         self._pad = (gh * factor - h, gw * factor - w)
         inv = 1.0 / self.sigma_range
         if factor == 1:
-            rw = self.levels[:, None, None] - g[None]
+            rw = levels_a[:, None, None] - g[None]
             wb = wts[None]
         else:
-            rw = self.levels[None, :, None] - self._cells(g)[:, None, :]
+            rw = levels_a[None, :, None] - self._cells(g)[:, None, :]
             wb = self._cells(wts)[:, None, :]
         # In place: exp(-((L_k - g) / sigma_range)^2 / 2) * w.
         rw *= inv
         rw *= rw
         rw *= -0.5
-        np.exp(rw, out=rw)
+        xp.exp(rw, out=rw)
         rw *= wb
         self._range_w = rw
+        self._blur = _grid_blur(xp, self.grid_shape, self.grid_sigma, g)
         den = self._blur(self._splat(None))
         self._den_ok = den > 1e-300
-        self._den = np.where(self._den_ok, den, 1.0)
+        self._den = xp.where(self._den_ok, den, 1.0)
 
         # Trilinear slicing: each pixel blends two levels x four grid corners
         # of the (small, cache-resident) table of components.
         if n_levels > 1:
             kf = (g - gmin) * ((n_levels - 1) / (gmax - gmin))
-            k0 = np.clip(np.floor(kf), 0, n_levels - 2).astype(np.intp)
-            a = np.clip(kf - k0, 0.0, 1.0)
+            k0 = xp.astype(xp.clip(xp.floor(kf), 0, n_levels - 2), xp.index)
+            a = xp.clip(kf - k0, 0.0, 1.0)
         else:
-            k0 = np.zeros(g.shape, dtype=np.intp)
-            a = np.zeros(g.shape)
-        y0, y1, ty = interp_weights(h, gh, factor)
-        x0, x1, tx = interp_weights(w, gw, factor)
-        idx = np.empty((8, h, w), dtype=np.intp)
-        wgt = np.empty((8, h, w))
+            k0 = xp.zeros((h, w), like=g, dtype=xp.index)
+            a = xp.zeros((h, w), like=g)
+        y0, y1, ty = (xp.asarray(v, like=g) for v in interp_weights(h, gh, factor))
+        x0, x1, tx = (xp.asarray(v, like=g) for v in interp_weights(w, gw, factor))
+        idx = xp.zeros((8, h, w), like=k0)
+        wgt = xp.zeros((8, h, w), like=g)
         j = 0
-        for k_idx, k_w in ((k0, 1.0 - a), (np.minimum(k0 + 1, n_levels - 1), a)):
+        for k_idx, k_w in ((k0, 1.0 - a), (xp.clip(k0 + 1, 0, n_levels - 1), a)):
             k_base = k_idx * (gh * gw)
             for yy, wy in ((y0, 1.0 - ty), (y1, ty)):
                 for xx, wx in ((x0, 1.0 - tx), (x1, tx)):
-                    np.add(k_base, (yy * gw)[:, None] + xx[None, :], out=idx[j])
-                    np.multiply(k_w, wy[:, None] * wx[None, :], out=wgt[j])
+                    xp.add(k_base, (yy * gw)[:, None] + xx[None, :], out=idx[j])
+                    xp.mul(k_w, wy[:, None] * wx[None, :], out=wgt[j])
                     j += 1
         self._idx = idx
         # Components with no weight within reach are undefined: those corners
         # are dropped and the remaining interpolation weights renormalised.
-        if not self._den_ok.all():
+        # _slice_ok: the pixels with a defined result (None: all of them).
+        self._slice_ok = None
+        if not bool(self._den_ok.all()):
             wgt *= self._den_ok.reshape(-1)[idx]
-            total = wgt.sum(axis=0)
+            total = xp.sum(wgt, 0)
             self._slice_ok = total > 1e-12
-            wgt /= np.where(self._slice_ok, total, 1.0)
-        else:
-            self._slice_ok = np.ones((h, w), dtype=bool)
+            wgt /= xp.where(self._slice_ok, total, 1.0)
         self._slice_w = wgt
 
-    def _cells(self, a: np.ndarray) -> np.ndarray:
+    def _cells(self, a: Any) -> Any:
         """(H, W) -> (cells, factor^2), zero-padded to whole cells."""
         factor = self.downsample
         gh, gw = self.grid_shape
-        ap = np.pad(a, ((0, self._pad[0]), (0, self._pad[1])))
-        return ap.reshape(gh, factor, gw, factor).transpose(0, 2, 1, 3).reshape(gh * gw, factor * factor)
+        h, w = self.shape
+        if self._pad != (0, 0):
+            ap = self.xp.zeros((gh * factor, gw * factor), like=a)
+            ap[:h, :w] = a
+            a = ap
+        cells = self.xp.permute(a.reshape(gh, factor, gw, factor), (0, 2, 1, 3))
+        return cells.reshape(gh * gw, factor * factor)
 
-    def _splat(self, f: np.ndarray | None) -> np.ndarray:
+    def _splat(self, f: Any) -> Any:
         """``sum over each grid cell of range_w_k * f`` (f = 1 when None): (K, gh, gw)."""
         factor = self.downsample
         gh, gw = self.grid_shape
         if factor == 1:
-            return self._range_w.copy() if f is None else self._range_w * f[None]
+            return self.xp.copy(self._range_w) if f is None else self._range_w * f[None]
         if f is None:
-            sums = self._range_w.sum(axis=2)
+            sums = self.xp.sum(self._range_w, 2)
         else:
-            sums = np.matmul(self._range_w, self._cells(f)[:, :, None])[..., 0]
-        return np.ascontiguousarray(sums.T).reshape(-1, gh, gw)
+            sums = (self._range_w @ self._cells(f)[:, :, None])[..., 0]
+        return self.xp.copy(sums.T).reshape(-1, gh, gw)
 
-    def _blur(self, s: np.ndarray) -> np.ndarray:
-        """Spatial Gaussian of each level (zero outside the image), in place."""
-        for k in range(s.shape[0]):
-            s[k] = ndimage.gaussian_filter(s[k], self.grid_sigma, mode="constant", cval=0.0, truncate=TRUNCATE)
-        return s
-
-    def __call__(self, image: Any) -> np.ndarray:
+    def __call__(self, image: Any) -> Any:
         """Filter ``image`` (H, W) or (H, W, C); returns float64 of its shape.
 
-        Where no pixel with non-zero weight lies within the kernel's support
-        the input value is returned unchanged.
+        An array of the guide's kind (a numpy array, or a tensor on the
+        guide's device).  Where no pixel with non-zero weight lies within the
+        kernel's support the input value is returned unchanged.
         """
-        f = np.asarray(image, dtype=np.float64)
-        if f.shape[:2] != self.shape or f.ndim not in (2, 3):
+        xp = self.xp
+        f = xp.asarray(image, like=self._den, dtype=xp.float64)
+        if tuple(f.shape[:2]) != self.shape or f.ndim not in (2, 3):
             raise MethodError(
-                f"joint bilateral image of shape {f.shape}: expected (H, W) or (H, W, C) "
+                f"joint bilateral image of shape {tuple(f.shape)}: expected (H, W) or (H, W, C) "
                 f"with (H, W) = {self.shape}, the guide's shape"
             )
-        if not np.all(np.isfinite(f)):
+        if not bool(xp.isfinite(f).all()):
             raise MethodError("joint bilateral image contains NaN or infinite values")
         if f.ndim == 3:
-            return np.stack([self(f[..., c]) for c in range(f.shape[2])], axis=-1)
+            return xp.stack([self(f[..., c]) for c in range(f.shape[2])], axis=-1)
         num = self._blur(self._splat(f))
-        comp = np.where(self._den_ok, num / self._den, 0.0)
-        out = np.einsum("khw,khw->hw", comp.reshape(-1)[self._idx], self._slice_w)
-        return np.where(self._slice_ok, out, f)
+        comp = xp.where(self._den_ok, num / self._den, 0.0)
+        out = xp.einsum("khw,khw->hw", comp.reshape(-1)[self._idx], self._slice_w)
+        return out if self._slice_ok is None else xp.where(self._slice_ok, out, f)
 
 
 def joint_bilateral(
@@ -295,9 +346,10 @@ def joint_bilateral(
 
     Returns
     -------
-    numpy.ndarray
-        float64 of ``image``'s shape.  Where every weight within reach is 0,
-        the input value.
+    numpy.ndarray or torch.Tensor
+        float64 of ``image``'s shape, of the guide's kind (see
+        :class:`JointBilateral`).  Where every weight within reach is 0, the
+        input value.
 
     Raises
     ------

@@ -1,12 +1,21 @@
-"""The constant-time joint bilateral filter against a brute-force joint bilateral filter."""
+"""The constant-time joint bilateral filter against a brute-force joint bilateral filter.
+
+The same filter on PyTorch tensors (the one implementation over the array
+namespace) is checked against the numpy results, on the CPU build of PyTorch
+where it is installed (skipped otherwise) and on a CUDA GPU where one is present
+(``POLCAM_TEST_DEVICES`` overrides the list, e.g. ``cpu,cuda``).
+"""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from polcam.errors import MethodError
-from polcam.filters import JointBilateral, joint_bilateral
+from polcam.filters import JointBilateral, gaussian_matrix, joint_bilateral
 
 TRUNCATE = 4.0  # the filter truncates its spatial Gaussian at 4 sigma (scipy.ndimage's convention)
 
@@ -175,3 +184,91 @@ def test_automatic_levels():
     jb = JointBilateral(g, sigma_spatial=2.0, sigma_range=1e-5)
     assert jb.levels.size == 64  # capped: memory is levels x H x W
     np.testing.assert_allclose(jb.levels[[0, -1]], [0.2, 0.7])
+
+
+def test_gaussian_matrix_is_scipys_gaussian_filter():
+    # the device blur of the coarse grid: a matrix product equal to scipy's 1-D filter
+    # with zeros outside, also when the kernel is wider than the signal
+    rng = np.random.default_rng(8)
+    for n, sigma in ((40, 2.3), (25, 6.0), (5, 6.0), (1, 3.0)):
+        x = rng.random(n)
+        want = ndimage.gaussian_filter1d(x, sigma, mode="constant", cval=0.0, truncate=TRUNCATE)
+        np.testing.assert_allclose(gaussian_matrix(n, sigma) @ x, want, rtol=0, atol=1e-14)
+
+
+# ---------------------------------------------------------------------------
+# the same filter on PyTorch tensors
+# ---------------------------------------------------------------------------
+
+def _devices() -> list[str]:
+    """Torch devices to test on ([] without PyTorch: the tests are skipped)."""
+    try:
+        import torch
+    except ImportError:
+        return []
+    env = os.environ.get("POLCAM_TEST_DEVICES")
+    if env:
+        return [d for d in env.split(",") if d]
+    return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+def _t(a: np.ndarray, dev: str):
+    torch = pytest.importorskip("torch")
+    return torch.as_tensor(np.ascontiguousarray(a), device=dev)
+
+
+@pytest.mark.parametrize("dev", _devices())
+def test_torch_with_empty_components_matches_numpy(dev):
+    rng = np.random.default_rng(2)
+    g = rng.uniform(0, 1, (50, 61))
+    f = rng.uniform(0, 1, (50, 61))
+    wts = (rng.uniform(0, 1, g.shape) > 0.7).astype(float)
+    wts[:, :40] = 0                        # beyond the kernel's reach of the left columns: empty
+    a = JointBilateral(g, sigma_spatial=4.0, sigma_range=0.05, weights=wts)
+    b = JointBilateral(_t(g, dev), sigma_spatial=4.0, sigma_range=0.05, weights=_t(wts, dev))
+    assert not a._den_ok.all() and not a._slice_ok.all()
+    got = b(_t(f, dev))
+    assert got.device.type == dev.split(":")[0] and str(got.dtype) == "torch.float64"
+    np.testing.assert_allclose(got.cpu().numpy(), a(f), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got.cpu().numpy()[:, :20], f[:, :20])     # the input where nothing counts
+
+
+@pytest.mark.parametrize("dev", _devices())
+@pytest.mark.parametrize("shape,sigma,downsample", [((48, 60), 15.0, None), ((33, 70), 20.0, 3),
+                                                    ((20, 24), 4.0, 1)])
+def test_torch_coarse_grid_and_channels_match_numpy(dev, shape, sigma, downsample):
+    # cells of 2 x 2 and 3 x 3 pixels with partial cells at the border, and the full grid;
+    # a numpy image given to a tensor-bound filter is moved to the guide's device
+    rng = np.random.default_rng(3)
+    g = _guide(rng, *shape)
+    f = rng.random(shape + (3,))
+    a = JointBilateral(g, sigma_spatial=sigma, sigma_range=0.08, downsample=downsample)
+    b = JointBilateral(_t(g, dev), sigma_spatial=sigma, sigma_range=0.08, downsample=downsample)
+    assert b.downsample == a.downsample and b._slice_ok is None
+    want = a(f)
+    np.testing.assert_allclose(b(_t(f, dev)).cpu().numpy(), want, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b(f).cpu().numpy(), want, rtol=0, atol=1e-12)
+    if downsample is None:
+        assert np.abs(want[..., 0] - brute_force(f[..., 0], g, sigma, 0.08)).max() < 0.005
+
+
+@pytest.mark.parametrize("dev", _devices())
+def test_torch_exact_when_the_guide_takes_only_level_values(dev):
+    rng = np.random.default_rng(0)
+    g = np.where(rng.random((30, 40)) > 0.5, 0.2, 0.7)
+    f = rng.random((30, 40))
+    out = joint_bilateral(_t(f, dev), _t(g, dev), sigma_spatial=3.0, sigma_range=0.3, levels=2, downsample=1)
+    ref = brute_force(f, g, 3.0, 0.3, truncate=TRUNCATE)
+    np.testing.assert_allclose(out.cpu().numpy(), ref, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("dev", _devices())
+def test_torch_bad_arrays(dev):
+    with pytest.raises(MethodError, match="NaN"):
+        joint_bilateral(_t(np.zeros((4, 5)), dev), _t(np.full((4, 5), np.nan), dev),
+                        sigma_spatial=1.0, sigma_range=0.1)
+    with pytest.raises(MethodError, match="non-negative"):
+        JointBilateral(_t(np.zeros((4, 5)), dev), sigma_spatial=1.0, sigma_range=0.1,
+                       weights=_t(-np.ones((4, 5)), dev))
+    with pytest.raises(MethodError, match="guide's shape"):
+        JointBilateral(_t(np.zeros((4, 5)), dev), sigma_spatial=1.0, sigma_range=0.1)(_t(np.zeros((4, 6)), dev))

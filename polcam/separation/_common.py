@@ -20,6 +20,12 @@ pixels give finite values in the documented range, never NaN, never a
 RuntimeWarning.  The functions and their signatures are a stable interface
 for the method modules (yang10, shen09, shen13, yamamoto19, tan05, yoon06,
 shen08, akashi16).
+
+The helpers Yang'10 uses (:func:`as_rgb_image`, the channel reductions,
+:func:`safe_divide`, :func:`specular_free_chromaticity`,
+:func:`diffuse_from_max_chromaticity`, :func:`finish_diffuse`) are written over
+the array namespace of :mod:`polcam._xp`: given a ``torch.Tensor`` they return
+one on its device (float64), so the method runs on a device unchanged.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from polcam._xp import namespace
 from polcam.errors import MethodError
 
 __all__ = [
@@ -57,13 +64,13 @@ def as_rgb_image(image: Any, *, method: str = "") -> np.ndarray:
     ----------
     image
         (H, W, 3) array of floats in [0, 1] (values within 1e-6 outside are
-        clipped), H, W >= 1.
+        clipped), H, W >= 1; a ``torch.Tensor`` stays one.
     method
         Name of the calling method, used in the error message.
 
     Returns
     -------
-    numpy.ndarray
+    numpy.ndarray or torch.Tensor
         (H, W, 3) float64 in [0, 1] (a copy when clipping or casting).
 
     Raises
@@ -73,21 +80,23 @@ def as_rgb_image(image: Any, *, method: str = "") -> np.ndarray:
         [0, 1] or an empty image.
     """
     who = f"method {method!r}: " if method else ""
-    arr = np.asarray(image)
-    if arr.ndim != 3 or arr.shape[-1] != 3:
-        raise MethodError(f"{who}image of shape {arr.shape}: expected an (H, W, 3) RGB image")
-    if arr.shape[0] == 0 or arr.shape[1] == 0:
-        raise MethodError(f"{who}image of shape {arr.shape}: expected H >= 1 and W >= 1")
-    if not np.issubdtype(arr.dtype, np.floating):
+    xp = namespace(image)
+    arr = xp.asarray(image)
+    shape = tuple(arr.shape)
+    if arr.ndim != 3 or shape[-1] != 3:
+        raise MethodError(f"{who}image of shape {shape}: expected an (H, W, 3) RGB image")
+    if shape[0] == 0 or shape[1] == 0:
+        raise MethodError(f"{who}image of shape {shape}: expected H >= 1 and W >= 1")
+    if not xp.is_floating(arr):
         raise MethodError(
             f"{who}image of dtype {arr.dtype}: expected linear floats in [0, 1]"
         )
-    if not np.all(np.isfinite(arr)):
+    if not bool(xp.isfinite(arr).all()):
         raise MethodError(f"{who}image contains NaN or infinite values: expected floats in [0, 1]")
     lo, hi = float(arr.min()), float(arr.max())
     if lo < -1e-6 or hi > 1 + 1e-6:
         raise MethodError(f"{who}image values span [{lo:.4g}, {hi:.4g}]: expected [0, 1]")
-    return np.clip(arr.astype(np.float64, copy=False), 0.0, 1.0)
+    return xp.clip(xp.astype(arr, xp.float64), 0.0, 1.0)
 
 
 def is_finite_number(value: Any) -> bool:
@@ -107,21 +116,27 @@ def is_finite_number(value: Any) -> bool:
     return bool(real and np.isfinite(value))
 
 
+def _float64(a: Any) -> tuple[Any, Any]:
+    """The namespace of ``a`` and ``a`` as a float64 array of it."""
+    xp = namespace(a)
+    return xp, xp.asarray(a, dtype=xp.float64)
+
+
 def channel_max(image: np.ndarray) -> np.ndarray:
     """Largest channel ``max_c I_c`` of an (..., 3) array, as (...) float64."""
-    image = np.asarray(image, dtype=np.float64)
-    return np.maximum(np.maximum(image[..., 0], image[..., 1]), image[..., 2])
+    xp, image = _float64(image)
+    return xp.maximum(xp.maximum(image[..., 0], image[..., 1]), image[..., 2])
 
 
 def channel_min(image: np.ndarray) -> np.ndarray:
     """Smallest channel ``min_c I_c`` of an (..., 3) array, as (...) float64."""
-    image = np.asarray(image, dtype=np.float64)
-    return np.minimum(np.minimum(image[..., 0], image[..., 1]), image[..., 2])
+    xp, image = _float64(image)
+    return xp.minimum(xp.minimum(image[..., 0], image[..., 1]), image[..., 2])
 
 
 def channel_sum(image: np.ndarray) -> np.ndarray:
     """Sum of the channels ``I_R + I_G + I_B`` of an (..., 3) array, as (...) float64."""
-    image = np.asarray(image, dtype=np.float64)
+    _, image = _float64(image)
     return image[..., 0] + image[..., 1] + image[..., 2]
 
 
@@ -131,7 +146,8 @@ def safe_divide(num: Any, den: Any, *, fill: float = 0.0, eps: float = EPS) -> n
     Parameters
     ----------
     num, den
-        Arrays (or scalars) broadcastable to a common shape.
+        Arrays (or scalars) broadcastable to a common shape (torch tensors:
+        both on one device).
     fill
         Value where the denominator is (near) zero.
     eps
@@ -139,16 +155,12 @@ def safe_divide(num: Any, den: Any, *, fill: float = 0.0, eps: float = EPS) -> n
 
     Returns
     -------
-    numpy.ndarray
+    numpy.ndarray or torch.Tensor
         float64 of the broadcast shape.
     """
-    num = np.asarray(num, dtype=np.float64)
-    den = np.asarray(den, dtype=np.float64)
-    num, den = np.broadcast_arrays(num, den)
-    ok = np.abs(den) > eps
-    out = np.full(num.shape, float(fill))
-    np.divide(num, den, out=out, where=ok)
-    return out
+    xp, num = _float64(num)
+    den = xp.asarray(den, like=num, dtype=xp.float64)
+    return xp.divide_where(num, den, abs(den) > eps, float(fill))
 
 
 def chromaticity(image: np.ndarray, *, fill: float = 1.0 / 3.0) -> np.ndarray:
@@ -167,7 +179,7 @@ def chromaticity(image: np.ndarray, *, fill: float = 1.0 / 3.0) -> np.ndarray:
     numpy.ndarray
         (..., 3) float64 in [0, 1], summing to 1 per pixel.
     """
-    image = np.asarray(image, dtype=np.float64)
+    _, image = _float64(image)
     return safe_divide(image, channel_sum(image)[..., None], fill=fill)
 
 
@@ -195,8 +207,8 @@ def specular_free(image: np.ndarray, *, offset: Any = 0.0) -> np.ndarray:
     numpy.ndarray
         (..., 3) float64, >= ``offset``.
     """
-    image = np.asarray(image, dtype=np.float64)
-    return image - channel_min(image)[..., None] + np.asarray(offset, dtype=np.float64)
+    xp, image = _float64(image)
+    return image - channel_min(image)[..., None] + xp.asarray(offset, like=image, dtype=xp.float64)
 
 
 def specular_free_chromaticity(image: np.ndarray) -> np.ndarray:
@@ -219,16 +231,14 @@ def specular_free_chromaticity(image: np.ndarray) -> np.ndarray:
         (..., 3) float64 in [0, 1], summing to 1 per pixel; the minimum
         channel is 0 except at achromatic pixels.
     """
-    image = np.asarray(image, dtype=np.float64)
+    xp, image = _float64(image)
     free = image - channel_min(image)[..., None]
     total = channel_sum(free)[..., None]
     # Relative threshold: a pixel whose channel spread is below 1e-9 of its
     # intensity is achromatic to numerical precision.
     scale = channel_sum(image)[..., None]
-    ok = total > np.maximum(EPS, 1e-9 * scale)
-    out = np.full(image.shape, 1.0 / 3.0)
-    np.divide(free, total, out=out, where=ok)
-    return out
+    ok = total > xp.clamp_min(1e-9 * scale, EPS)
+    return xp.divide_where(free, total, ok, 1.0 / 3.0)
 
 
 def diffuse_from_max_chromaticity(
@@ -264,14 +274,14 @@ def diffuse_from_max_chromaticity(
 
     Returns
     -------
-    numpy.ndarray
+    numpy.ndarray or torch.Tensor
         (H, W, 3) float64 diffuse layer with ``0 <= diffuse <= image``.
     """
-    image = np.asarray(image, dtype=np.float64)
+    xp, image = _float64(image)
     total = channel_sum(image)
     sigma_max = safe_divide(channel_max(image), total, fill=1.0 / 3.0)
-    lam = np.clip(np.asarray(max_diffuse_chromaticity, dtype=np.float64), 1.0 / 3.0, 1.0)
-    lam = np.maximum(lam, sigma_max)
+    lam = xp.clip(xp.asarray(max_diffuse_chromaticity, like=image, dtype=xp.float64), 1.0 / 3.0, 1.0)
+    lam = xp.maximum(lam, sigma_max)
     spec = safe_divide(total * (lam - sigma_max), 3.0 * lam - 1.0, fill=0.0, eps=eps)
     return finish_diffuse(image - spec[..., None], image)
 
@@ -310,5 +320,5 @@ def finish_diffuse(diffuse: np.ndarray, image: np.ndarray) -> np.ndarray:
         (H, W, 3) float64 with ``0 <= diffuse <= image``; non-finite values
         become 0.
     """
-    diffuse = np.nan_to_num(np.asarray(diffuse, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    return np.clip(diffuse, 0.0, image)
+    xp, diffuse = _float64(diffuse)
+    return xp.clip(xp.nan_to_num(diffuse), 0.0, xp.asarray(image, like=diffuse))

@@ -46,6 +46,12 @@ from [1/3, 1] to [0, 1], i.e. ``sigma_range = 0.04 / 1.5`` here, with 10
 levels; those settings reproduce the paper's own PSNR figures on Shen &
 Zheng's images (docs/algorithm.md, yang10), the default reproduces the
 SIHR toolbox's.  Both are within 1 dB of either.
+
+Backends: the method is written over the array namespace of
+:mod:`polcam._xp`, as its filter and helpers are.  A numpy image is the
+registered method; a ``torch.Tensor`` runs every step on its device in
+float64 and returns a tensor there (the tensor method's initial diffuse with
+``device=``; equal to the numpy result to rounding, tested).
 """
 
 from __future__ import annotations
@@ -54,6 +60,7 @@ from typing import Any
 
 import numpy as np
 
+from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.filters import JointBilateral
 from polcam.separation._common import (
@@ -89,25 +96,27 @@ def max_diffuse_chromaticity(
     Parameters
     ----------
     image
-        (H, W, 3) float64 in [0, 1].
+        (H, W, 3) float64 in [0, 1] (numpy array or torch tensor).
     sigma_spatial, sigma_range, threshold, dark, levels, max_iter
         See :func:`separate_yang10`.
 
     Returns
     -------
-    lam : numpy.ndarray
+    lam : numpy.ndarray or torch.Tensor
         (H, W) estimate of ``Lambda_max`` in [1/3, 1] (the filtered
-        ``sigma_max``; dark pixels keep their own ``sigma_max``).
-    bright : numpy.ndarray
+        ``sigma_max``; dark pixels keep their own ``sigma_max``), of the
+        image's kind.
+    bright : numpy.ndarray or torch.Tensor
         (H, W) bool, the pixels processed (not dark).
     info : dict
         ``iterations``, ``converged``.
     """
+    xp = namespace(image)
     h, w, _ = image.shape
     i_max = channel_max(image)
     sigma_max = safe_divide(i_max, channel_sum(image), fill=1.0 / 3.0)
     bright = i_max > dark
-    if not bright.any():
+    if not bool(bright.any()):
         return sigma_max, bright, {"iterations": 0, "converged": True}
     lam_guide = channel_max(specular_free_chromaticity(image))
     if sigma_spatial is None:
@@ -117,16 +126,16 @@ def max_diffuse_chromaticity(
         sigma_spatial=sigma_spatial,
         sigma_range=sigma_range,
         levels=levels,
-        weights=bright.astype(np.float64),
+        weights=xp.astype(bright, xp.float64),
     )
     converged = False
     iterations = 0
     while iterations < max_iter:
         filtered = filt(sigma_max)
         iterations += 1
-        changed = np.count_nonzero((filtered - sigma_max > threshold) & bright)
-        sigma_max = np.where(bright, np.maximum(sigma_max, filtered), sigma_max)
-        if changed == 0:
+        changed = bool(((filtered - sigma_max > threshold) & bright).any())
+        sigma_max = xp.where(bright, xp.maximum(sigma_max, filtered), sigma_max)
+        if not changed:
             converged = True
             break
     return sigma_max, bright, {"iterations": iterations, "converged": converged}
@@ -149,7 +158,8 @@ def separate_yang10(
     ----------
     image
         (H, W, 3) float in [0, 1], linear RGB under a white (or
-        white-balanced) illuminant.
+        white-balanced) illuminant: a numpy array, or a ``torch.Tensor``
+        (any float dtype) to run on its device.
     sigma_spatial
         Spatial sigma of the joint bilateral filter in pixels (None: 0.25 of
         the smaller image side, the paper's value).
@@ -167,8 +177,9 @@ def separate_yang10(
 
     Returns
     -------
-    diffuse : numpy.ndarray
-        (H, W, 3) float64 with ``0 <= diffuse <= image``.
+    diffuse : numpy.ndarray or torch.Tensor
+        (H, W, 3) float64 with ``0 <= diffuse <= image``, of the image's
+        kind (a tensor on the image's device).
     info : dict
         ``iterations`` and ``converged``.
 
@@ -197,5 +208,5 @@ def separate_yang10(
         max_iter=int(max_iter),
     )
     diffuse = diffuse_from_max_chromaticity(image, lam)
-    diffuse = np.where(bright[..., None], diffuse, image)
+    diffuse = namespace(image).where(bright[..., None], diffuse, image)
     return diffuse, info

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -135,3 +137,61 @@ def test_finish_diffuse():
     est = np.array([[[np.nan, 0.2, 0.9], [-0.1, np.inf, 0.3], [0.4, 0.4, 0.4]]])
     out = finish_diffuse(est, image)
     np.testing.assert_array_equal(out, [[[0.0, 0.2, 0.5], [0.0, 0.0, 0.3], [0.4, 0.4, 0.4]]])
+
+
+# ---------------------------------------------------------------------------
+# the helpers Yang'10 uses, on PyTorch tensors: the numpy values, on the tensor's device
+# ---------------------------------------------------------------------------
+
+def _devices() -> list[str]:
+    """Torch devices to test on ([] without PyTorch: the tests are skipped)."""
+    try:
+        import torch
+    except ImportError:
+        return []
+    env = os.environ.get("POLCAM_TEST_DEVICES")
+    if env:
+        return [d for d in env.split(",") if d]
+    return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+@pytest.mark.parametrize("dev", _devices())
+def test_torch_helpers_equal_numpy(dev):
+    torch = pytest.importorskip("torch")
+    rng = np.random.default_rng(4)
+    x, _, lam = _dichromatic(rng)
+    x[0, 0] = 0.0                      # black
+    x[0, 1] = 0.4                      # grey
+    x[0, 2] = (1.0, 1.0, 0.2)          # saturated
+    lam_max = lam.max(axis=-1)
+    t = torch.as_tensor(x, device=dev)
+    cases = [
+        (as_rgb_image(x.astype(np.float32)), as_rgb_image(t.to(torch.float32))),
+        (channel_max(x), channel_max(t)),
+        (channel_min(x), channel_min(t)),
+        (channel_sum(x), channel_sum(t)),
+        (safe_divide(x[..., 0], x[..., 1] - 0.3, fill=-1.0), safe_divide(t[..., 0], t[..., 1] - 0.3, fill=-1.0)),
+        (chromaticity(x), chromaticity(t)),
+        (specular_free(x, offset=0.1), specular_free(t, offset=0.1)),
+        (specular_free_chromaticity(x), specular_free_chromaticity(t)),
+        (diffuse_from_max_chromaticity(x, lam_max),
+         diffuse_from_max_chromaticity(t, torch.as_tensor(lam_max, device=dev))),
+        (finish_diffuse(x - 0.1, x), finish_diffuse(t - 0.1, t)),
+    ]
+    for want, got in cases:
+        assert isinstance(got, torch.Tensor) and got.device.type == dev.split(":")[0]
+        assert got.dtype == torch.float64
+        np.testing.assert_allclose(got.cpu().numpy(), want, rtol=0, atol=1e-15)
+    bad = torch.as_tensor([[[np.nan, 0.5, np.inf]]], device=dev)
+    np.testing.assert_array_equal(finish_diffuse(bad, torch.full_like(bad, 0.7)).cpu().numpy(), [[[0, 0.5, 0]]])
+
+
+@pytest.mark.parametrize("dev", _devices())
+def test_torch_as_rgb_image_refuses(dev):
+    torch = pytest.importorskip("torch")
+    with pytest.raises(MethodError, match="dtype"):
+        as_rgb_image(torch.zeros((4, 4, 3), dtype=torch.uint8, device=dev), method="yang10")
+    with pytest.raises(MethodError, match="NaN"):
+        as_rgb_image(torch.full((4, 4, 3), float("nan"), device=dev))
+    with pytest.raises(MethodError, match=r"expected an \(H, W, 3\)"):
+        as_rgb_image(torch.zeros((4, 4), device=dev))

@@ -1,10 +1,15 @@
 """yang10 (Yang, Wang & Ahuja, ECCV 2010) on synthetic dichromatic scenes with known diffuse.
 
 The checks every single-image method shares (registration, scale contract, edge cases) are in
-test_contract.py.
+test_contract.py.  The same method on PyTorch tensors (the tensor method's initial diffuse
+with ``device=``) is checked against numpy on the CPU build of PyTorch where it is installed
+(skipped otherwise) and on a CUDA GPU where one is present (``POLCAM_TEST_DEVICES`` overrides
+the list, e.g. ``cpu,cuda``).
 """
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 import pytest
@@ -105,3 +110,60 @@ def test_bad_images(image, match):
 def test_bad_options(opts, match):
     with pytest.raises(MethodError, match=match):
         separate_yang10(np.full((4, 4, 3), 0.5), **opts)
+
+
+# ---------------------------------------------------------------------------
+# the same method on PyTorch tensors
+# ---------------------------------------------------------------------------
+
+def _devices() -> list[str]:
+    """Torch devices to test on ([] without PyTorch: the tests are skipped)."""
+    try:
+        import torch
+    except ImportError:
+        return []
+    env = os.environ.get("POLCAM_TEST_DEVICES")
+    if env:
+        return [d for d in env.split(",") if d]
+    return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+@pytest.fixture(scope="module")
+def bunny() -> np.ndarray:
+    from polcam.synth.render import render
+    from polcam.synth.scenes import scene
+
+    return np.clip(render(scene("Bunny6"), size=72, seed=3).stack[1], 0, 1)
+
+
+@pytest.mark.parametrize("dev", _devices())
+@pytest.mark.parametrize("size,dark", [(40, 20 / 255), (72, 20 / 255), (72, 0.45)])
+def test_torch_matches_numpy(bunny, dev, size, dark):
+    # 40: the grid is the image (sigma 10 < 12 pixels); 72: cells of 3 x 3 pixels;
+    # dark=0.45 leaves many pixels out (zero weight), so some grid components are empty
+    torch = pytest.importorskip("torch")
+    img = bunny[:size, :size]
+    want, info = separate_yang10(img, dark=dark)
+    got, got_info = separate_yang10(torch.as_tensor(img, device=dev), dark=dark)
+    assert np.abs(want - img).max() > 0.01         # Yang'10 removed something
+    assert got.device.type == dev.split(":")[0] and got.dtype == torch.float64
+    assert got_info == info
+    np.testing.assert_allclose(got.cpu().numpy(), want, rtol=0, atol=1e-10)
+    # a float32 tensor (the tensor method's default) is computed in float64 all the same
+    got32, _ = separate_yang10(torch.as_tensor(img.astype(np.float32), device=dev), dark=dark)
+    want32, _ = separate_yang10(img.astype(np.float32), dark=dark)
+    np.testing.assert_allclose(got32.cpu().numpy(), want32, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("dev", _devices())
+def test_torch_recovers_the_banded_scene_and_refuses_bad_images(dev):
+    torch = pytest.importorskip("torch")
+    image, diffuse = banded_scene()
+    out, info = separate_yang10(torch.as_tensor(image, device=dev))
+    assert psnr(out.cpu().numpy(), diffuse) > 48 and info["converged"]
+    dark = torch.full((6, 7, 3), 0.05, dtype=torch.float64, device=dev)
+    np.testing.assert_array_equal(separate_yang10(dark)[0].cpu().numpy(), dark.cpu().numpy())
+    with pytest.raises(MethodError, match="dtype"):
+        separate_yang10(torch.zeros((4, 4, 3), dtype=torch.uint8, device=dev))
+    with pytest.raises(MethodError, match=r"\[0, 1\]"):
+        separate_yang10(torch.full((4, 4, 3), 2.0, device=dev))

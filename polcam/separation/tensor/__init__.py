@@ -32,7 +32,7 @@ The package, in data-flow order (docs/algorithm.md, section 4):
 :mod:`.driver`
     :func:`separate_tensor`, the one pipeline.
 
-Every step is written once over an array namespace (:mod:`.xp`): numpy
+Every step is written once over an array namespace (:mod:`polcam._xp`): numpy
 arrays, or PyTorch tensors with ``device=`` (the ``torch`` extra).
 """
 

@@ -28,8 +28,10 @@ from typing import Any
 
 import numpy as np
 
+from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.parallel import blas_limit, map_processes, submit_processes
+from polcam.separation._common import finish_diffuse
 from polcam.separation._registry import method_spec
 from polcam.separation.tensor.ialm import solve_tiles
 from polcam.separation.tensor.operators import (
@@ -42,10 +44,14 @@ from polcam.separation.tensor.operators import (
 )
 from polcam.separation.tensor.options import DEVICE_BATCH, INIT_PROCESS_PIXELS, Plan, default_lam, resolve
 from polcam.separation.tensor.tiling import blend, tile_batch, tile_spans
-from polcam.separation.tensor.xp import namespace
 from polcam.stokes import imin
 
 __all__ = ["separate_tensor", "initial_diffuse", "warm_up"]
+
+#: The single-image methods written over the array namespace (:mod:`polcam._xp`): with
+#: ``device=`` they compute the initial diffuse on the device; any other ``init`` runs
+#: in numpy on the host and is copied over.
+DEVICE_INITS = ("yang10",)
 
 
 def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: Any
@@ -244,10 +250,8 @@ class _Initial:
                     out[j // na, j % na] = fut.result()
             return out
         if xp.name == "torch":
-            if self.init == "yang10":
-                from polcam.separation.tensor.torch_yang10 import yang10
-
-                return xp.stack([xp.stack([xp.astype(yang10(im), images.dtype) for im in rep])
+            if self.init in DEVICE_INITS:
+                return xp.stack([xp.stack([xp.astype(_init_job((self.init, im, {})), images.dtype) for im in rep])
                                  for rep in images])
             host = initial_diffuse(xp.to_numpy(images), init=self.init, workers=self.workers)
             return xp.astype(xp.asarray(host, like=images), images.dtype)
@@ -295,13 +299,16 @@ def initial_diffuse(reps: np.ndarray, *, init: str = "yang10", workers: int = 1,
     return out
 
 
-def _init_job(args: tuple[str, np.ndarray, dict[str, Any]]) -> np.ndarray:
-    """One single-image run of the initial diffuse (here or in a worker process)."""
+def _init_job(args: tuple[str, Any, dict[str, Any]]) -> Any:
+    """One single-image run of the initial diffuse (here, in a worker process or on a device).
+
+    A numpy image gives float64 numpy; a tensor (a method of :data:`DEVICE_INITS`) a
+    float64 tensor on its device.
+    """
     init, rep, options = args
-    img = np.clip(rep, 0.0, 1.0)
+    img = namespace(rep).clip(rep, 0.0, 1.0)
     res = method_spec(init).fn(img, **options)
-    d = res[0] if isinstance(res, tuple) else res
-    return np.clip(np.nan_to_num(np.asarray(d, dtype=np.float64)), 0.0, img)
+    return finish_diffuse(res[0] if isinstance(res, tuple) else res, img)
 
 
 def _finish(diffuse_w: np.ndarray, *, gam: np.ndarray, scale: float, filled: float, lam_t: float,

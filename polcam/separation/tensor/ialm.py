@@ -7,7 +7,7 @@ Solves, per tensor (a batch of independent problems at once)::
 (paper eq. 4; eq. 10 with gamma = 0, eq. 11 with tau = 1 as well), ``||.||_*``
 the tensor nuclear norm of :mod:`polcam.separation._tsvt`, Q the phase
 projection (:func:`polcam.separation.tensor.operators.phase_project`).  The
-loop is written over the array namespace (:mod:`.xp`); a backend supplies only
+loop is written over the array namespace (:mod:`polcam._xp`); a backend supplies only
 the t-SVT, the spectral norm that sets mu0, and how element-wise updates are
 split among threads (:mod:`.numpy_backend`, :mod:`.torch_backend`).
 """
@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from polcam._xp import namespace
 from polcam.separation.tensor.operators import fold, phase_project
-from polcam.separation.tensor.xp import namespace
 
 __all__ = ["ialm", "solve_tiles", "backend_for"]
 

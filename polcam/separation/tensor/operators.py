@@ -9,7 +9,7 @@ projection Phi^-1(Phi(.)) of the phase term.  docs/algorithm.md states each as
 implemented and every departure from the paper.
 
 Every function takes numpy arrays or ``torch.Tensor`` (on any device) and
-returns the same kind (:func:`polcam.separation.tensor.xp.namespace`); the
+returns the same kind (:func:`polcam._xp.namespace`); the
 random draws of :func:`representations` come from a numpy generator in both
 cases, so both pick the same pixels.
 """
@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from polcam.errors import MethodError
-from polcam.separation.tensor.xp import namespace
+from polcam._xp import namespace
 
 __all__ = [
     "illuminant",

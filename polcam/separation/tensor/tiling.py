@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from polcam.separation.tensor.xp import namespace
+from polcam._xp import namespace
 
 __all__ = ["tile_spans", "ramps", "tile_windows", "tile_batch", "blend", "tiled", "seam_jumps"]
 

@@ -16,7 +16,8 @@ through the same code as numpy's (:mod:`.operators`, :mod:`.tiling`,
 * :func:`spectral_norms`: the largest singular value of each tile's slices (mu0);
 * :func:`chunks`: the element-wise updates as one call on the whole batch.
 
-The initial diffuse (Yang'10) on the device is :mod:`.torch_yang10`.
+The initial diffuse (Yang'10) on the device is :func:`polcam.separation.yang10.separate_yang10`
+itself, written over the array namespace (:mod:`polcam._xp`) like the steps above.
 """
 
 from __future__ import annotations

@@ -1,12 +1,14 @@
-"""The array namespaces the tensor method is written over: numpy and PyTorch.
+"""The array namespaces polcam's two-backend code is written over: numpy and PyTorch.
 
-The operators (:mod:`.operators`), the tiling (:mod:`.tiling`) and the IALM
-loop (:mod:`.ialm`) are written once, against the small set of functions
-below; :func:`namespace` picks the set from the type of an array.  Only names
-whose spelling differs between numpy and PyTorch are here (``axis`` against
-``dim``, ``clip`` against ``clamp``, ``out=`` forms); operators both spell the
-same (``+``, ``*=``, slicing, ``reshape``, ``sum`` without an axis) are used
-directly.
+The tensor method's operators, tiling and IALM loop
+(:mod:`polcam.separation.tensor`), the joint bilateral filter
+(:mod:`polcam.filters`), Yang'10 (:mod:`polcam.separation.yang10`) and the
+helpers it shares (:mod:`polcam.separation._common`) are written once, against
+the small set of functions below; :func:`namespace` picks the set from the type
+of an array.  Only names whose spelling differs between numpy and PyTorch are
+here (``axis`` against ``dim``, ``clip`` against ``clamp``, ``out=`` and
+``where=`` forms); operators both spell the same (``+``, ``*=``, ``@``,
+slicing, ``reshape``, ``sum`` without an axis) are used directly.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ class NumpyXP:
 
     name = "numpy"
     float64 = np.float64
+    #: dtype of index arrays
+    index = np.intp
 
     @staticmethod
     def asarray(a: Any, like: Any = None, dtype: Any = None) -> np.ndarray:
@@ -94,7 +98,15 @@ class NumpyXP:
     @staticmethod
     def div(a: Any, b: Any, out: np.ndarray) -> np.ndarray:
         return np.divide(a, b, out=out)
+
+    @staticmethod
+    def divide_where(a: np.ndarray, b: np.ndarray, ok: np.ndarray, fill: float) -> np.ndarray:
+        """``a / b`` where ``ok``, ``fill`` elsewhere (broadcast), never dividing outside ``ok``."""
+        out = np.full(np.broadcast_shapes(a.shape, b.shape, ok.shape), fill, dtype=np.result_type(a, b))
+        return np.divide(a, b, out=out, where=ok)
+
     exp = staticmethod(np.exp)
+    floor = staticmethod(np.floor)
     hypot = staticmethod(np.hypot)
     isfinite = staticmethod(np.isfinite)
     einsum = staticmethod(np.einsum)
@@ -104,6 +116,15 @@ class NumpyXP:
     @staticmethod
     def clamp_min(a: np.ndarray, lo: Any, out: np.ndarray | None = None) -> np.ndarray:
         return np.maximum(a, lo, out=out)
+
+    @staticmethod
+    def nan_to_num(a: np.ndarray) -> np.ndarray:
+        """NaN and infinities replaced by 0."""
+        return np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+
+    @staticmethod
+    def is_floating(a: np.ndarray) -> bool:
+        return bool(np.issubdtype(a.dtype, np.floating))
 
     @staticmethod
     def clip(a: np.ndarray, lo: Any, hi: Any, out: np.ndarray | None = None) -> np.ndarray:
@@ -163,11 +184,12 @@ class TorchXP:
 
         self.torch = torch
         self.float64 = torch.float64
+        self.index = torch.int64
 
     def asarray(self, a: Any, like: Any = None, dtype: Any = None) -> Any:
-        t = self.torch.as_tensor(np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a,
-                                 device=None if like is None else like.device)
-        return t if dtype is None else t.to(dtype)
+        # the dtype given to as_tensor: a Python float is not rounded to float32 first
+        return self.torch.as_tensor(np.ascontiguousarray(a) if isinstance(a, np.ndarray) else a,
+                                    dtype=dtype, device=None if like is None else like.device)
 
     @staticmethod
     def to_numpy(a: Any) -> np.ndarray:
@@ -237,8 +259,14 @@ class TorchXP:
             return self.torch.mul(self.torch.reciprocal(b), a, out=out)
         return self.torch.div(a, b, out=out)
 
-    def exp(self, a: Any) -> Any:
-        return self.torch.exp(a)
+    def divide_where(self, a: Any, b: Any, ok: Any, fill: float) -> Any:
+        return self.where(ok, a / self.where(ok, b, 1.0), fill)
+
+    def exp(self, a: Any, out: Any = None) -> Any:
+        return self.torch.exp(a) if out is None else self.torch.exp(a, out=out)
+
+    def floor(self, a: Any) -> Any:
+        return self.torch.floor(a)
 
     def hypot(self, a: Any, b: Any) -> Any:
         return self.torch.hypot(a, b)
@@ -258,7 +286,18 @@ class TorchXP:
     def clamp_min(self, a: Any, lo: Any, out: Any = None) -> Any:
         return a.clamp_min(lo) if out is None else self.torch.clamp_min(a, lo, out=out)
 
+    def nan_to_num(self, a: Any) -> Any:
+        return self.torch.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+
+    @staticmethod
+    def is_floating(a: Any) -> bool:
+        return bool(a.is_floating_point())
+
     def clip(self, a: Any, lo: Any, hi: Any, out: Any = None) -> Any:
+        t = self.torch
+        if isinstance(lo, t.Tensor) != isinstance(hi, t.Tensor):      # clamp takes two numbers or two tensors
+            lo, hi = (v if isinstance(v, t.Tensor) else t.as_tensor(v, dtype=a.dtype, device=a.device)
+                      for v in (lo, hi))
         if out is None:
             return self.torch.clamp(a, lo, hi)
         if out is not a:
