@@ -22,6 +22,8 @@ import numpy as np
 
 from polcam.errors import MethodError
 from polcam._xp import namespace
+from polcam.separation._illuminant import estimate_illuminant as _checked
+from polcam.separation._illuminant import projected_chromaticity
 
 __all__ = [
     "illuminant",
@@ -68,8 +70,6 @@ def illuminant(stack: Any, option: Any) -> np.ndarray:
         if option == "polarization":
             # the polarized light's colour checked against the highlights' (polcam.separation._illuminant):
             # right on the real stacks where the polarized colour alone is not (docs/benchmarks.md)
-            from polcam.separation._illuminant import estimate_illuminant as _checked
-
             col = _checked(namespace(stack).to_numpy(stack)).colour
             return col / col.sum()
         if option == "white":
@@ -79,59 +79,8 @@ def illuminant(stack: Any, option: Any) -> np.ndarray:
     return gam / gam.sum()
 
 
-def estimate_illuminant(stack: Any, *, significance: float = 5.0, efficiency: Any = None) -> np.ndarray:
-    """Illuminant chromaticity from the polarized light.
-
-    Diffuse reflection is (close to) unpolarized, so the linear polarization
-    ``v_c = (S1_c, S2_c)`` of every channel comes from specular reflection,
-    whose colour is the illuminant's (dichromatic model): at a pixel,
-    ``v_c = rho S Gamma_c (cos 2 phi, sin 2 phi)``, one direction for R, G and B
-    with lengths in the ratio of Gamma.  The estimate projects each channel's
-    ``v_c`` onto the polarization direction of the pixel's neighbourhood
-    (the channel-summed ``v`` of its 8 neighbours), so that zero-mean noise,
-    independent between pixels, averages out instead of adding a positive bias
-    in the colour of the brightest channel (as a sum of amplitudes ``Isv``
-    would):
-
-        Gamma_c  proportional to  sum_p  v_c(p) . n(p),   n(p) = sum_{q in N8(p)} sum_c v_c(q)
-
-    over unsaturated pixels.  When the total is not ``significance`` times its
-    own noise (estimated from the spread of the per-pixel terms), or a channel
-    comes out non-positive, the estimate is white.
-
-    Parameters
-    ----------
-    stack
-        (4, H, W, 3) float in [0, 1] (numpy or torch; computed in float64).
-    significance
-        How many standard deviations of the noise the signal must exceed.
-    efficiency
-        (3,) per-colour polarizer efficiency in (0, 1] (``v_c`` is divided by it), or None (ideal).
-
-    Returns
-    -------
-    numpy.ndarray
-        (3,) chromaticity summing to 1 (white = 1/3 each).
-    """
-    xp = namespace(stack)
-    x = xp.astype(stack, xp.float64)
-    v = xp.stack([x[0] - x[2], x[1] - x[3]], axis=-1)          # (H, W, 3, 2)
-    if efficiency is not None:
-        v = v / xp.asarray(np.asarray(efficiency, np.float64).reshape(3, 1), like=v)
-    vs = xp.sum(v, axis=2)                                      # (H, W, 2)
-    h, w = vs.shape[:2]
-    p = xp.pad_hw(vs, 1, 0.0)                                   # zeros outside
-    box = sum(p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
-    terms = xp.einsum("hwcj,hwj->hwc", v, box - vs)             # (H, W, 3)
-    ok = xp.amax(x, axis=(0, 3)) < 0.98
-    t = terms[ok]
-    if t.shape[0] == 0:
-        return np.full(3, 1 / 3)
-    total = xp.to_numpy(xp.sum(t, axis=0))
-    noise = float(np.sqrt(np.sum(xp.to_numpy(xp.sum(t, axis=1)) ** 2)))
-    if total.sum() <= significance * noise or np.any(total <= 0):
-        return np.full(3, 1 / 3)
-    return total / total.sum()
+#: The polarized light's colour by projection (:func:`polcam.separation._illuminant.projected_chromaticity`).
+estimate_illuminant = projected_chromaticity
 
 
 def white_divisor(gamma: Any) -> np.ndarray:
