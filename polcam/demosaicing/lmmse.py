@@ -20,8 +20,9 @@ As implemented here (docs/demosaic.md has the details):
   Constraints: a pixel's own sample is kept exactly; the weights each output puts on
   each (angle, colour) lattice sum to 1 on its own lattice and 0 on the others, so a
   uniformly polarized, uniformly coloured scene comes back exactly whatever the
-  weights; the first moments of those weights about the output pixel vanish too,
-  so images whose every angle and colour is affine in x and y come back exactly.
+  weights; the first and second moments of those weights about the output pixel
+  vanish too, so images whose every angle and colour is quadratic in x and y come back
+  exactly.
 * A second stage (:func:`second_stage`) re-estimates every angle from its own
   samples with the bank's S0 as guide: the polarization ratio ``I / (S0 / 2)``
   (colour) is interpolated by Gaussian normalised convolution and multiplied back.

@@ -20,16 +20,20 @@ half-planes, with sharp anti-aliased edges), each with
 
 then mild optical blur, clipping at the white level, and raw noise
 (signal-dependent Gaussian, sometimes 8-bit quantisation) on the mosaic only; the
-targets are the noise-free stacks.
+targets are the noise-free stacks.  To these the shipped weights add scenes of
+:mod:`polcam.synth.patterns` (:func:`pattern_stack`: smooth, textured, edges, sweep,
+with seeds the benchmark and the validation set do not use).
 
 The fit (:func:`fit_bank`) is constrained least squares: for every output (angle,
 pixel of the 4x4 block, colour), minimise the squared error over all training
 blocks subject to (1) a pixel's own sample is kept, (2) the weights on each (angle,
 colour) lattice sum to 1 on the output's own lattice and 0 on the others, (3) the
-first moments of each lattice's weights about the output pixel vanish (so an image
-whose every angle and colour is an affine function of position comes back exactly).
-A small ridge term (``ridge`` times the mean diagonal of the Gram matrix) keeps the
-solve well conditioned.
+moments of each lattice's weights about the output pixel vanish up to order
+``moments`` (1: an image whose every angle and colour is an affine function of
+position comes back exactly; 2, the shipped weights: a quadratic one).  A small ridge
+term (``ridge`` times the mean diagonal of the Gram matrix) keeps the solve well
+conditioned.  The defaults of the command line were chosen on polcam's own
+validation set (:mod:`polcam.demosaicing.validation`).
 """
 
 from __future__ import annotations

@@ -122,3 +122,5 @@ def test_shipped_weights_say_how_they_were_made() -> None:
     with np.load(WEIGHTS_FILE) as data:
         info = json.loads(str(data["info"]))
     assert info["scenes"] >= 100 and "polcam.demosaicing.training" in info["command"]
+    # the settings the validation set chose (docs/demosaic.md)
+    assert info["moments"] == 2 and info["patterns"] == 50 and info["ridge"] == 0.01 and info["seed"] == 2024
