@@ -82,7 +82,7 @@ AOLP_MIN_DOLP = 0.1
 #: ... and at least this S0 (S0 of a white unpolarized pixel is 1).
 AOLP_MIN_S0 = 0.1
 #: Methods measured by default: polcam's and polanalyser's bilinear.
-DEFAULT_METHODS: tuple[str, ...] = ("bilinear", "eari", "lmmse", "polanalyser")
+DEFAULT_METHODS: tuple[str, ...] = ("bilinear", "eari", "lmmse", "lmmse-eari", "polanalyser")
 #: Layouts measured by default (polanalyser knows only these two).
 DEFAULT_LAYOUTS: tuple[str, ...] = ("imx250mzr", "imx250myr")
 #: Size of the raw frame timed for the speed figures (H, W).

@@ -8,9 +8,10 @@ method it runs the registry's best one for the layout (:func:`default_method`).
 of a given layout samples it), used by the benchmarks and the tests.
 
 Every module in this package whose name does not start with an underscore is a
-method module (except :mod:`~polcam.demosaicing.training`, the ``lmmse`` training
-script); importing the package imports them all, and each registers itself
-with :func:`register`.  docs/demosaic.md describes the methods.
+method module (except :mod:`~polcam.demosaicing.training` and
+:mod:`~polcam.demosaicing.validation`, the ``lmmse`` training and model
+selection); importing the package imports them all, and each registers itself with
+:func:`register`.  docs/demosaic.md describes the methods.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from polcam.demosaicing._registry import (
 )
 
 #: Modules of this package that are not methods.
-_NOT_METHODS = frozenset({"training"})
+_NOT_METHODS = frozenset({"training", "validation"})
 
 for _mod in pkgutil.iter_modules(__path__):
     if not _mod.name.startswith("_") and _mod.name not in _NOT_METHODS:

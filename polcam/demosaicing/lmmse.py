@@ -20,8 +20,9 @@ As implemented here (docs/demosaic.md has the details):
   Constraints: a pixel's own sample is kept exactly; the weights each output puts on
   each (angle, colour) lattice sum to 1 on its own lattice and 0 on the others, so a
   uniformly polarized, uniformly coloured scene comes back exactly whatever the
-  weights; the first moments of those weights about the output pixel vanish too,
-  so images whose every angle and colour is affine in x and y come back exactly.
+  weights; the first and second moments of those weights about the output pixel
+  vanish too, so images whose every angle and colour is quadratic in x and y come back
+  exactly.
 * A second stage (:func:`second_stage`) re-estimates every angle from its own
   samples with the bank's S0 as guide: the polarization ratio ``I / (S0 / 2)``
   (colour) is interpolated by Gaussian normalised convolution and multiplied back.
@@ -53,8 +54,8 @@ from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 
 __all__ = ["BLOCK", "CANONICAL", "LMMSE_PARAMS", "NBLOCKS", "REFERENCE", "WEIGHTS_FILE", "Plan", "apply_bank",
-           "block_features", "lattice_of_taps", "lmmse", "plan", "second_stage", "tap_offsets", "to_blocks",
-           "weight_key"]
+           "block_features", "lattice_of_taps", "lmmse", "plan", "run_lmmse", "second_stage", "tap_offsets",
+           "to_blocks", "weight_key"]
 
 REFERENCE = ("LMMSE demosaicing after N. Spote, P.-J. Lapray, J.-B. Thomas, I. Farup, \"Joint demosaicing "
              "of colour and polarisation from filter arrays\", CIC 2021 (and P. Amba, J. Dias, "
@@ -288,8 +289,9 @@ LMMSE_PARAMS: dict[str, float | str] = {
     # second stage per kind of layout: "ratio" (polarization ratio), "difference" or "none"
     "color_stage": "ratio",
     "mono_stage": "none",
-    # Gaussian of the normalised convolution of the ratios / differences, pixels
+    # Gaussian of the normalised convolution of the ratios / differences, pixels (colour, mono)
     "sigma": 2.0,
+    "mono_sigma": 1.0,
     # offset of the ratio's denominator, relative to the mean of the mosaic
     "ratio_eps": 1e-2,
 }
@@ -377,7 +379,22 @@ def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, 
 
 
 def lmmse(img: np.ndarray, lay: Layout) -> np.ndarray:
-    """LMMSE filter-bank demosaicing of a float32 (H, W) mosaic.
+    """LMMSE filter-bank demosaicing of a float32 (H, W) mosaic, with the shipped weights and
+    :data:`LMMSE_PARAMS`.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 (4, H, W) for a mono layout, (4, H, W, 3) for a colour one.
+    """
+    return run_lmmse(img, lay, weights=_weights(), params=LMMSE_PARAMS)
+
+
+def run_lmmse(img: np.ndarray, lay: Layout, *, weights: dict[str, np.ndarray],
+              params: dict[str, float | str]) -> np.ndarray:
+    """:func:`lmmse` with given banks (:func:`weight_key` -> (144, outputs) float32) and
+    second-stage parameters (the keys of :data:`LMMSE_PARAMS`): what the model selection of
+    :mod:`polcam.demosaicing.validation` runs on its validation scenes.
 
     Returns
     -------
@@ -388,14 +405,15 @@ def lmmse(img: np.ndarray, lay: Layout) -> np.ndarray:
     p = plan(lay, h, w)
     raw = np.ascontiguousarray(_transform(img, p.transform))
     channels = 3 if lay.is_color else 1
-    canon = apply_bank(raw, _weights()[p.key], p.shift, channels)
+    canon = apply_bank(raw, np.ascontiguousarray(weights[p.key], dtype=np.float32), p.shift, channels)
     if p.relabel != (0, 1, 2, 3):
         canon = canon[list(p.relabel)]
     stack = np.ascontiguousarray(_untransform(canon, p.transform))
-    mode = str(LMMSE_PARAMS["color_stage" if lay.is_color else "mono_stage"])
+    mode = str(params["color_stage" if lay.is_color else "mono_stage"])
     if mode != "none":
-        stack = second_stage(img, stack, lay, mode=mode, sigma=float(LMMSE_PARAMS["sigma"]),
-                             eps=float(LMMSE_PARAMS["ratio_eps"]))
+        stack = second_stage(img, stack, lay, mode=mode,
+                             sigma=float(params["sigma" if lay.is_color else "mono_sigma"]),
+                             eps=float(params["ratio_eps"]))
     if not lay.is_color:
         stack = stack[..., 0]
     return np.ascontiguousarray(stack)

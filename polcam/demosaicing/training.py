@@ -20,16 +20,20 @@ half-planes, with sharp anti-aliased edges), each with
 
 then mild optical blur, clipping at the white level, and raw noise
 (signal-dependent Gaussian, sometimes 8-bit quantisation) on the mosaic only; the
-targets are the noise-free stacks.
+targets are the noise-free stacks.  To these the shipped weights add scenes of
+:mod:`polcam.synth.patterns` (:func:`pattern_stack`: smooth, textured, edges, sweep,
+with seeds the benchmark and the validation set do not use).
 
 The fit (:func:`fit_bank`) is constrained least squares: for every output (angle,
 pixel of the 4x4 block, colour), minimise the squared error over all training
 blocks subject to (1) a pixel's own sample is kept, (2) the weights on each (angle,
 colour) lattice sum to 1 on the output's own lattice and 0 on the others, (3) the
-first moments of each lattice's weights about the output pixel vanish (so an image
-whose every angle and colour is an affine function of position comes back exactly).
-A small ridge term (``ridge`` times the mean diagonal of the Gram matrix) keeps the
-solve well conditioned.
+moments of each lattice's weights about the output pixel vanish up to order
+``moments`` (1: an image whose every angle and colour is an affine function of
+position comes back exactly; 2, the shipped weights: a quadratic one).  A small ridge
+term (``ridge`` times the mean diagonal of the Gram matrix) keeps the solve well
+conditioned.  The defaults of the command line were chosen on polcam's own
+validation set (:mod:`polcam.demosaicing.validation`).
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import cv2
@@ -58,8 +62,13 @@ from polcam.demosaicing.lmmse import (  # noqa: I001
 )
 from polcam.io.atomic import atomic_path
 from polcam.mosaic import Layout, parse_layout
+from polcam.synth.patterns import SCENES, make_scene
 
 __all__ = ["fit_bank", "main", "training_stack"]
+
+#: Defaults of the command line (chosen by :mod:`polcam.demosaicing.validation`; docs/demosaic.md).
+DEFAULT_PATTERNS = 50
+DEFAULT_MOMENTS = 2
 
 #: Rec. 709 luminance weights: the mono training stacks are the colour ones' luminance.
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
@@ -225,10 +234,12 @@ def accumulate(stacks: Sequence[tuple[np.ndarray, np.ndarray]], lay: Layout
 
 
 def fit_bank(gram: np.ndarray, cross: np.ndarray, lay: Layout, *, ridge: float = 1e-2,
-             moments: bool = True) -> np.ndarray:
+             moments: int = 1) -> np.ndarray:
     """Constrained least-squares filter bank (see the module docstring).
 
-    ``gram`` and ``cross`` come from :func:`accumulate`; ``moments``: impose constraint (3).
+    ``gram`` and ``cross`` come from :func:`accumulate`; ``moments``: the order up to which the
+    moments of each lattice's weights about the output pixel vanish (0: none, 1: constraint (3),
+    affine images exact; 2: also the second moments, quadratic images exact).
 
     Returns
     -------
@@ -258,10 +269,11 @@ def fit_bank(gram: np.ndarray, cross: np.ndarray, lay: Layout, *, ridge: float =
                         sel = (lat == lt).astype(np.float64)
                         rows.append(sel)
                         rhs.append(1.0 if lt == target else 0.0)
-                        if moments:
-                            rows.append(sel * (off[:, 0] - u))
-                            rhs.append(0.0)
-                            rows.append(sel * (off[:, 1] - v))
+                        dy, dx = off[:, 0] - u, off[:, 1] - v
+                        polys = [dy, dx] if moments >= 1 else []
+                        polys += [dy * dy, dy * dx, dx * dx] if moments >= 2 else []
+                        for poly in polys:
+                            rows.append(sel * poly)
                             rhs.append(0.0)
                     cm = np.array(rows)
                     kkt = np.block([[a, cm.T], [cm, np.zeros((len(rows), len(rows)))]])
@@ -274,12 +286,23 @@ def fit_bank(gram: np.ndarray, cross: np.ndarray, lay: Layout, *, ridge: float =
     return weights.astype(np.float32)
 
 
-def train(*, scenes: int, size: int, seed: int, ridge: float, moments: bool = True) -> dict[str, np.ndarray]:
-    """Render ``scenes`` scenes and fit the four banks of :data:`CANONICAL`."""
-    rng = np.random.default_rng(seed)
-    sums: dict[str, list] = {}
-    for i in range(scenes):
-        stack = training_stack(rng, size)
+def pattern_stack(rng: np.random.Generator, size: int) -> np.ndarray:
+    """One training scene from :mod:`polcam.synth.patterns` (smooth, textured, edges or sweep, the
+    colours sharing one polarization), drawn with a seed of at least 1000 (the benchmark reports
+    seed 0, the validation set uses seed 1).
+
+    Returns
+    -------
+    numpy.ndarray
+        (4, size, size, 3) float32 in [0, 1], angles 0, 45, 90, 135, RGB.
+    """
+    name = SCENES[int(rng.integers(0, len(SCENES)))]
+    seed = int(rng.integers(1000, 2**31 - 1))
+    return make_scene(name, height=size, width=size, seed=seed, color=True).stack
+
+
+def _sum_scenes(sums: dict[str, list], stacks: Iterator[np.ndarray], rng: np.random.Generator) -> None:
+    for i, stack in enumerate(stacks):
         mono = np.tensordot(stack, LUMA, axes=([3], [0])).astype(np.float32)
         for (color, geo), name in CANONICAL.items():
             lay = parse_layout(name)
@@ -294,13 +317,40 @@ def train(*, scenes: int, size: int, seed: int, ridge: float, moments: bool = Tr
             else:
                 sums[key] = [g, x, n]
         if (i + 1) % 20 == 0:
-            sys.stderr.write(f"{i + 1}/{scenes} scenes\n")
+            sys.stderr.write(f"{i + 1} scenes\n")
+
+
+def gram_sums(*, scenes: int, size: int, seed: int, patterns: int = 0) -> dict[str, list]:
+    """Render ``scenes`` scenes of :func:`training_stack` (generator seeded by ``seed``) and
+    ``patterns`` scenes of :func:`pattern_stack` (their own generator, seeded by ``[seed, 1]``),
+    and sum the normal equations of the four banks of :data:`CANONICAL`:
+    ``{weight_key: [gram, cross, count]}`` (see :func:`accumulate`).  The sums of the two kinds
+    add: ``gram_sums(scenes=a, patterns=b)`` is ``gram_sums(scenes=a)`` plus
+    ``gram_sums(scenes=0, patterns=b)``."""
+    sums: dict[str, list] = {}
+    rng = np.random.default_rng(seed)
+    _sum_scenes(sums, (training_stack(rng, size) for _ in range(scenes)), rng)
+    rng = np.random.default_rng([seed, 1])
+    _sum_scenes(sums, (pattern_stack(rng, size) for _ in range(patterns)), rng)
+    return sums
+
+
+def fit_all(sums: dict[str, list], *, ridge: float, moments: int = 1) -> dict[str, np.ndarray]:
+    """The four banks of :data:`CANONICAL` from :func:`gram_sums`' normal equations."""
     out = {}
     for (color, geo), name in CANONICAL.items():
         key = weight_key(color, geo)
         g, x, _ = sums[key]
         out[key] = fit_bank(g, x, parse_layout(name), ridge=ridge, moments=moments)
     return out
+
+
+def train(*, scenes: int, size: int, seed: int, ridge: float, moments: int = 1,
+          patterns: int = 0) -> dict[str, np.ndarray]:
+    """Render ``scenes`` scenes (and ``patterns`` pattern scenes) and fit the four banks of
+    :data:`CANONICAL`."""
+    return fit_all(gram_sums(scenes=scenes, size=size, seed=seed, patterns=patterns), ridge=ridge,
+                   moments=moments)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -312,13 +362,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=2024, help="random seed (default 2024)")
     ap.add_argument("--ridge", type=float, default=1e-2,
                     help="ridge, relative to the mean Gram diagonal (default 0.01)")
+    ap.add_argument("--patterns", type=int, default=DEFAULT_PATTERNS,
+                    help=f"pattern scenes added (default {DEFAULT_PATTERNS})")
+    ap.add_argument("--moments", type=int, default=DEFAULT_MOMENTS, choices=(0, 1, 2),
+                    help=f"order of the vanishing moments (default {DEFAULT_MOMENTS})")
     ap.add_argument("--out", type=Path, default=WEIGHTS_FILE, help=f"output .npz (default {WEIGHTS_FILE})")
     args = ap.parse_args(argv)
     if args.size % BLOCK or args.size < 4 * BLOCK:
         ap.error(f"--size {args.size}: expected a multiple of {BLOCK}, at least {4 * BLOCK}")
     t0 = time.perf_counter()
-    weights = train(scenes=args.scenes, size=args.size, seed=args.seed, ridge=args.ridge)
+    weights = train(scenes=args.scenes, size=args.size, seed=args.seed, ridge=args.ridge, moments=args.moments,
+                    patterns=args.patterns)
     info = {"scenes": args.scenes, "size": args.size, "seed": args.seed, "ridge": args.ridge,
+            "patterns": args.patterns, "moments": args.moments,
             "command": "python -m polcam.demosaicing.training " + " ".join(argv or sys.argv[1:]),
             "data": "polcam's own rendered scenes (polcam.demosaicing.training.training_stack); "
                     "no third-party images"}

@@ -94,7 +94,7 @@ def test_bank_matches_a_per_pixel_reference(color: bool) -> None:
 @pytest.mark.parametrize("key", ["mono_diag", "mono_beside", "color_diag", "color_beside"])
 def test_shipped_weights_keep_the_constraints(key: str) -> None:
     """Own samples kept; each output's weights sum to 1 on its own lattice and 0 on the others;
-    first moments about the output pixel vanish (so affine images come back)."""
+    first and second moments about the output pixel vanish (so quadratic images come back)."""
     weights = lm._weights()[key].astype(np.float64)
     color = key.startswith("color")
     canon = parse_layout(lm.CANONICAL[(color, key.split("_")[1])])
@@ -116,6 +116,9 @@ def test_shipped_weights_keep_the_constraints(key: str) -> None:
             assert w[sel].sum() == pytest.approx(1.0 if lt == target else 0.0, abs=1e-4)
             assert float(w[sel] @ (off[sel, 0] - u)) == pytest.approx(0.0, abs=1e-3)
             assert float(w[sel] @ (off[sel, 1] - v)) == pytest.approx(0.0, abs=1e-3)
+            dy, dx = off[sel, 0] - u, off[sel, 1] - v  # second moments (quadratic images exact)
+            for poly in (dy * dy, dy * dx, dx * dx):
+                assert float(w[sel] @ poly) == pytest.approx(0.0, abs=1e-4)
 
 
 @pytest.mark.parametrize("lay", [MZR, MYR, ALL_MONO[5], ALL_COLOR[37]], ids=lambda x: x.name)

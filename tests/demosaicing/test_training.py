@@ -10,7 +10,8 @@ import pytest
 
 from polcam.demosaicing import mosaic_stack
 from polcam.demosaicing.lmmse import CANONICAL, lattice_of_taps, tap_offsets
-from polcam.demosaicing.training import accumulate, fit_bank, main, training_stack
+from polcam.demosaicing.lmmse import apply_bank
+from polcam.demosaicing.training import accumulate, fit_bank, gram_sums, main, pattern_stack, training_stack
 from polcam.mosaic import parse_layout
 from polcam.stokes import dolp
 
@@ -61,6 +62,48 @@ def test_fit_keeps_the_constraints_and_fits_its_data(color: bool) -> None:
     assert float(np.sqrt(np.mean((pred - tgt) ** 2))) < 0.5 * float(tgt.std())
 
 
+@pytest.mark.parametrize("color", [False, True])
+def test_second_moments_make_quadratic_images_exact(color: bool) -> None:
+    """With ``moments=2`` every angle (and colour) image a different quadratic function of x and
+    y comes back exactly; with ``moments=1`` it does not."""
+    lay = parse_layout(CANONICAL[(color, "diag")])
+    stack = training_stack(np.random.default_rng(1), 64)
+    truth = stack if color else stack[..., 1]
+    gram, cross, _ = accumulate([(mosaic_stack(truth, layout=lay), truth)], lay)
+    h, w = 40, 48
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64) / 40
+    rng = np.random.default_rng(2)
+    channels = 3 if color else 1
+    quad = np.empty((4, h, w, channels), np.float32)
+    for k in range(4):
+        for c in range(channels):
+            a = rng.uniform(-0.3, 0.3, 6)
+            quad[k, ..., c] = 0.5 + a[0] * x + a[1] * y + a[2] * x * x + a[3] * x * y + a[4] * y * y
+    q = quad if color else quad[..., 0]
+    raw = mosaic_stack(q, layout=lay)
+    errs = {}
+    for order in (1, 2):
+        wts = fit_bank(gram, cross, lay, ridge=1e-2, moments=order)
+        est = apply_bank(raw, wts, (0, 0), channels)[:, 8:-8, 8:-8]
+        errs[order] = float(np.abs(est - quad[:, 8:-8, 8:-8]).max())
+    assert errs[2] < 1e-4 < errs[1], errs
+
+
+def test_pattern_scenes_and_additive_sums() -> None:
+    """Pattern scenes are seeded RGB stacks in [0, 1]; the normal equations of scenes and pattern
+    scenes add, so the selection can fit every mix from two passes."""
+    a = pattern_stack(np.random.default_rng(3), 32)
+    np.testing.assert_array_equal(a, pattern_stack(np.random.default_rng(3), 32))
+    assert a.shape == (4, 32, 32, 3) and 0 <= float(a.min()) and float(a.max()) <= 1
+    both = gram_sums(scenes=1, size=32, seed=9, patterns=2)
+    first = gram_sums(scenes=1, size=32, seed=9)
+    second = gram_sums(scenes=0, size=32, seed=9, patterns=2)
+    for key, (g, x, n) in both.items():
+        np.testing.assert_allclose(g, first[key][0] + second[key][0])
+        np.testing.assert_allclose(x, first[key][1] + second[key][1])
+        assert n == first[key][2] + second[key][2]
+
+
 def test_command_line_writes_weights(tmp_path: Path) -> None:
     out = tmp_path / "w.npz"
     assert main(["--scenes", "2", "--size", "32", "--out", str(out)]) == 0
@@ -79,3 +122,5 @@ def test_shipped_weights_say_how_they_were_made() -> None:
     with np.load(WEIGHTS_FILE) as data:
         info = json.loads(str(data["info"]))
     assert info["scenes"] >= 100 and "polcam.demosaicing.training" in info["command"]
+    # the settings the validation set chose (docs/demosaic.md)
+    assert info["moments"] == 2 and info["patterns"] == 50 and info["ridge"] == 0.01 and info["seed"] == 2024
