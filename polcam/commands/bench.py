@@ -14,9 +14,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.bench == "demosaic":
         from polcam.bench import demosaic as bench
 
-        rows = bench.run(data_dir=args.data, size=args.size, seed=args.seed)
-        print(bench.format_markdown(rows))
-        return 0
+        return bench.run_args(args)
     if args.bench == "quality":
         from polcam.bench import quality
 
@@ -65,13 +63,13 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                                    "sensor. real: every colour method on real colour-polarization stacks, "
                                    "judged by physics.")
     bsub = b.add_subparsers(dest="bench", required=True, metavar="BENCH")
+    from polcam.bench import demosaic as _demosaic
+
     bd = bsub.add_parser("demosaic", help="demosaicing quality and speed",
-                         description="Demosaicing quality (PSNR of I, S0, DoLP; AoLP error) and speed against "
-                                     "ground truth on synthetic scenes and a real colour stack, beside "
-                                     "polanalyser.")
-    bd.add_argument("--data", type=Path, help="a real colour stack folder (0_1.png .. 135_1.png)")
-    bd.add_argument("--size", type=int, help="size of the synthetic scenes")
-    bd.add_argument("--seed", type=int, default=0, help="random seed of the synthetic scenes (default 0)")
+                         description="Demosaicing quality (PSNR of S0 and DoLP, AoLP error) and speed against "
+                                     "ground truth on synthetic scenes and the real colour stacks (colour, and "
+                                     "their luminance as mono), per scene and method.")
+    _demosaic.add_arguments(bd)
     bs = bsub.add_parser("sihr", help="single-image highlight removal on the Shen 2013 images",
                          description="PSNR/SSIM and seconds of the single-image methods on the Shen 2013 "
                                      "images, beside the published table.")

@@ -100,6 +100,20 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     assert {r["method"] for r in rows} == {"bilinear", "eari"}
 
 
+def test_polcam_bench_demosaic_is_the_same_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from polcam.cli import main as polcam_main
+
+    out = tmp_path / "rows.json"
+    assert polcam_main(["bench", "demosaic", "--size", "32", "--methods", "bilinear", "--layouts", "imx250mzr",
+                        "--no-speed", "--json", str(out)]) == 0
+    assert "| smooth | bilinear |" in capsys.readouterr().out
+    assert {r["method"] for r in json.loads(out.read_text())} == {"bilinear"}
+    # the folder of real stacks under either spelling; a missing one is an error naming it
+    assert polcam_main(["bench", "demosaic", "--data", str(tmp_path / "nowhere")]) == 2
+    assert "nowhere: not a folder" in capsys.readouterr().err
+    assert main(["--data-dir", str(tmp_path / "nowhere")]) == 2
+
+
 def test_real_stack_loads(shared_data: Path) -> None:
     if not (shared_data / "real-color-stack").is_dir():
         pytest.skip("real-color-stack not in the shared data")
