@@ -8,7 +8,6 @@ where it is installed (skipped otherwise) and on a CUDA GPU where one is present
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
@@ -200,24 +199,11 @@ def test_gaussian_matrix_is_scipys_gaussian_filter():
 # the same filter on PyTorch tensors
 # ---------------------------------------------------------------------------
 
-def _devices() -> list[str]:
-    """Torch devices to test on ([] without PyTorch: the tests are skipped)."""
-    try:
-        import torch
-    except ImportError:
-        return []
-    env = os.environ.get("POLCAM_TEST_DEVICES")
-    if env:
-        return [d for d in env.split(",") if d]
-    return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-
-
 def _t(a: np.ndarray, dev: str):
     torch = pytest.importorskip("torch")
     return torch.as_tensor(np.ascontiguousarray(a), device=dev)
 
 
-@pytest.mark.parametrize("dev", _devices())
 def test_torch_with_empty_components_matches_numpy(dev):
     rng = np.random.default_rng(2)
     g = rng.uniform(0, 1, (50, 61))
@@ -233,7 +219,6 @@ def test_torch_with_empty_components_matches_numpy(dev):
     np.testing.assert_array_equal(got.cpu().numpy()[:, :20], f[:, :20])     # the input where nothing counts
 
 
-@pytest.mark.parametrize("dev", _devices())
 @pytest.mark.parametrize("shape,sigma,downsample", [((48, 60), 15.0, None), ((33, 70), 20.0, 3),
                                                     ((20, 24), 4.0, 1)])
 def test_torch_coarse_grid_and_channels_match_numpy(dev, shape, sigma, downsample):
@@ -252,7 +237,6 @@ def test_torch_coarse_grid_and_channels_match_numpy(dev, shape, sigma, downsampl
         assert np.abs(want[..., 0] - brute_force(f[..., 0], g, sigma, 0.08)).max() < 0.005
 
 
-@pytest.mark.parametrize("dev", _devices())
 def test_torch_exact_when_the_guide_takes_only_level_values(dev):
     rng = np.random.default_rng(0)
     g = np.where(rng.random((30, 40)) > 0.5, 0.2, 0.7)
@@ -262,7 +246,6 @@ def test_torch_exact_when_the_guide_takes_only_level_values(dev):
     np.testing.assert_allclose(out.cpu().numpy(), ref, rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("dev", _devices())
 def test_torch_bad_arrays(dev):
     with pytest.raises(MethodError, match="NaN"):
         joint_bilateral(_t(np.zeros((4, 5)), dev), _t(np.full((4, 5), np.nan), dev),

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
@@ -143,19 +142,6 @@ def test_finish_diffuse():
 # the helpers Yang'10 uses, on PyTorch tensors: the numpy values, on the tensor's device
 # ---------------------------------------------------------------------------
 
-def _devices() -> list[str]:
-    """Torch devices to test on ([] without PyTorch: the tests are skipped)."""
-    try:
-        import torch
-    except ImportError:
-        return []
-    env = os.environ.get("POLCAM_TEST_DEVICES")
-    if env:
-        return [d for d in env.split(",") if d]
-    return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-
-
-@pytest.mark.parametrize("dev", _devices())
 def test_torch_helpers_equal_numpy(dev):
     torch = pytest.importorskip("torch")
     rng = np.random.default_rng(4)
@@ -186,7 +172,6 @@ def test_torch_helpers_equal_numpy(dev):
     np.testing.assert_array_equal(finish_diffuse(bad, torch.full_like(bad, 0.7)).cpu().numpy(), [[[0, 0.5, 0]]])
 
 
-@pytest.mark.parametrize("dev", _devices())
 def test_torch_as_rgb_image_refuses(dev):
     torch = pytest.importorskip("torch")
     with pytest.raises(MethodError, match="dtype"):

@@ -9,7 +9,6 @@ the list, e.g. ``cpu,cuda``).
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
@@ -116,18 +115,6 @@ def test_bad_options(opts, match):
 # the same method on PyTorch tensors
 # ---------------------------------------------------------------------------
 
-def _devices() -> list[str]:
-    """Torch devices to test on ([] without PyTorch: the tests are skipped)."""
-    try:
-        import torch
-    except ImportError:
-        return []
-    env = os.environ.get("POLCAM_TEST_DEVICES")
-    if env:
-        return [d for d in env.split(",") if d]
-    return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-
-
 @pytest.fixture(scope="module")
 def bunny() -> np.ndarray:
     from polcam.synth.render import render
@@ -136,7 +123,6 @@ def bunny() -> np.ndarray:
     return np.clip(render(scene("Bunny6"), size=72, seed=3).stack[1], 0, 1)
 
 
-@pytest.mark.parametrize("dev", _devices())
 @pytest.mark.parametrize("size,dark", [(40, 20 / 255), (72, 20 / 255), (72, 0.45)])
 def test_torch_matches_numpy(bunny, dev, size, dark):
     # 40: the grid is the image (sigma 10 < 12 pixels); 72: cells of 3 x 3 pixels;
@@ -155,7 +141,6 @@ def test_torch_matches_numpy(bunny, dev, size, dark):
     np.testing.assert_allclose(got32.cpu().numpy(), want32, rtol=0, atol=1e-10)
 
 
-@pytest.mark.parametrize("dev", _devices())
 def test_torch_recovers_the_banded_scene_and_refuses_bad_images(dev):
     torch = pytest.importorskip("torch")
     image, diffuse = banded_scene()
