@@ -63,7 +63,8 @@ def run_command(args: argparse.Namespace) -> int:
 
     0 or the command's own status; 3 when a camera is unavailable (Aravis
     missing, no such camera, busy); 2 for any other :class:`PolcamError`
-    (the message on stderr); 130 when interrupted.  The standalone entry
+    (the message on stderr); 130 when interrupted; 141 (as a shell reports SIGPIPE) when the
+    reader of the output went away, quietly.  The standalone entry
     points (``python -m polcam.capture``, ``python -m polcam.calibration``)
     use it too.
     """
@@ -78,6 +79,11 @@ def run_command(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into a reader that stopped (`polcam formats | head`)
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit
+        return 141
 
 
 def add_camera_arguments(parser: Any, *, layout: bool = True) -> None:

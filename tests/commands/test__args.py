@@ -36,3 +36,21 @@ def test_default_methods_come_from_the_registry():
     from polcam.separation import default_method
 
     assert default_methods_text() == f"{default_method('stack')} for colour, {default_method('mono-stack')} for mono"
+
+
+def test_output_into_a_closed_pipe_ends_quietly():
+    # `polcam formats | head -1`: the reader goes away; no traceback, the shell's SIGPIPE status
+    import subprocess
+    import sys
+
+    import fcntl
+
+    proc = subprocess.Popen([sys.executable, "-m", "polcam", "formats"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    # a one-page pipe (before polcam has imported anything): its ~7.5 kB table cannot all fit
+    fcntl.fcntl(proc.stdout.fileno(), getattr(fcntl, "F_SETPIPE_SZ", 1031), 4096)
+    proc.stdout.readline()
+    proc.stdout.close()           # the reader stops after one line
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert proc.wait(60) == 141 and "Traceback" not in err and "BrokenPipe" not in err, err
