@@ -18,25 +18,8 @@ def _interior(a: np.ndarray, b: int = 8) -> np.ndarray:
     return a[b:a.shape[0] - b, b:a.shape[1] - b]
 
 
-def _affine_stack(lay: Layout) -> np.ndarray:
-    """Every angle (and colour) image a different affine function of x and y."""
-    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
-    shape = (4, H, W, 3) if lay.is_color else (4, H, W)
-    out = np.empty(shape, np.float32)
-    rng = np.random.default_rng(3)
-    for k in range(4):
-        for c in range(3 if lay.is_color else 1):
-            a, bx, by = rng.uniform(0.2, 0.4), rng.uniform(-4e-3, 4e-3), rng.uniform(-4e-3, 4e-3)
-            img = a + bx * x + by * y
-            if lay.is_color:
-                out[k, ..., c] = img
-            else:
-                out[k] = img
-    return out
-
-
-def test_bilinear_colour_is_exact_on_affine_images() -> None:
-    truth = _affine_stack(MYR)
+def test_bilinear_colour_is_exact_on_affine_images(affine_stack) -> None:
+    truth = affine_stack(MYR, H, W)
     est = demosaic(mosaic_stack(truth, layout=MYR), layout=MYR, method="bilinear")
     np.testing.assert_allclose(est[:, 6:-6, 6:-6], truth[:, 6:-6, 6:-6], atol=2e-5)
 

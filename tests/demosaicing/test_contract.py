@@ -143,29 +143,12 @@ def test_known_samples_are_reproduced(lay: Layout, method: str) -> None:
     np.testing.assert_allclose(mosaic_stack(est, layout=lay), raw, atol=1e-5)
 
 
-def _affine_stack(lay: Layout) -> np.ndarray:
-    """Every angle (and colour) image a different affine function of x and y."""
-    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
-    shape = (4, H, W, 3) if lay.is_color else (4, H, W)
-    out = np.empty(shape, np.float32)
-    rng = np.random.default_rng(3)
-    for k in range(4):
-        for c in range(3 if lay.is_color else 1):
-            a, bx, by = rng.uniform(0.2, 0.4), rng.uniform(-4e-3, 4e-3), rng.uniform(-4e-3, 4e-3)
-            img = a + bx * x + by * y
-            if lay.is_color:
-                out[k, ..., c] = img
-            else:
-                out[k] = img
-    return out
-
-
 @pytest.mark.parametrize("lay", [MZR, LAYOUTS[3], LAYOUTS[9]], ids=lambda x: x.name)
 @pytest.mark.parametrize("method", DEMOSAIC_METHODS)
-def test_mono_methods_are_exact_on_affine_images(lay: Layout, method: str) -> None:
+def test_mono_methods_are_exact_on_affine_images(lay: Layout, method: str, affine_stack) -> None:
     """Bilinear interpolation reproduces affine functions; so does EARI, whose guide is
     then the centred intensity and whose residual slope is 0 (no Laplacian energy)."""
-    truth = _affine_stack(lay)
+    truth = affine_stack(lay, H, W)
     est = demosaic(mosaic_stack(truth, layout=lay), layout=lay, method=method)
     np.testing.assert_allclose(est[:, B:-B, B:-B], truth[:, B:-B, B:-B], atol=2e-5)
 

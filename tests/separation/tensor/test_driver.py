@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
@@ -235,14 +234,6 @@ def test_diffuse_never_exceeds_imin():
 # the same pipeline on a torch device
 # ---------------------------------------------------------------------------
 
-def _devices() -> list[str]:
-    torch = pytest.importorskip("torch")
-    env = os.environ.get("POLCAM_TEST_DEVICES")
-    if env:
-        return [d for d in env.split(",") if d]
-    return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-
-
 @pytest.fixture(scope="module")
 def bunny() -> np.ndarray:
     from polcam.synth.render import render
@@ -258,46 +249,42 @@ def _psnr(a, b):
 
 
 @pytest.mark.parametrize("variant", ["tensor", "tensor-plain"])
-def test_device_pipeline_matches_numpy_tiled(bunny, variant):
+def test_device_pipeline_matches_numpy_tiled(bunny, variant, dev):
     # tiled, so the blend and the per-tile batches are exercised end to end
-    for dev in _devices():
-        a = separate(bunny, method=variant, tile=(40, 24), workers=1)
-        b = separate(bunny, method=variant, tile=(40, 24), device=dev)
-        assert b.info["tiles"] == a.info["tiles"] > 1 and b.info["device"] == dev
-        assert b.info["representations_filled"] == pytest.approx(a.info["representations_filled"])
-        np.testing.assert_allclose(b.info["illuminant_chromaticity"], a.info["illuminant_chromaticity"],
-                                   rtol=1e-9)
-        assert _psnr(b.diffuse, a.diffuse) > 70                   # float32 solvers, same problem
-        assert set(b.info["timings"]) == {"illuminant", "representations", "init", "ialm"}
+    a = separate(bunny, method=variant, tile=(40, 24), workers=1)
+    b = separate(bunny, method=variant, tile=(40, 24), device=dev)
+    assert b.info["tiles"] == a.info["tiles"] > 1 and b.info["device"] == dev
+    assert b.info["representations_filled"] == pytest.approx(a.info["representations_filled"])
+    np.testing.assert_allclose(b.info["illuminant_chromaticity"], a.info["illuminant_chromaticity"],
+                               rtol=1e-9)
+    assert _psnr(b.diffuse, a.diffuse) > 70                   # float32 solvers, same problem
+    assert set(b.info["timings"]) == {"illuminant", "representations", "init", "ialm"}
 
 
 @pytest.mark.parametrize("init,shared", [("shen09", False), ("shen09", True), ("yang10", False)])
-def test_device_pipeline_other_init_and_unshared(bunny, init, shared):
+def test_device_pipeline_other_init_and_unshared(bunny, init, shared, dev):
     small = bunny[:, :32, :32]
-    for dev in _devices():
-        a = separate(small, method="tensor", init=init, shared_init=shared, workers=1)
-        b = separate(small, method="tensor", init=init, shared_init=shared, device=dev)
-        assert _psnr(b.diffuse, a.diffuse) > 70
+    a = separate(small, method="tensor", init=init, shared_init=shared, workers=1)
+    b = separate(small, method="tensor", init=init, shared_init=shared, device=dev)
+    assert _psnr(b.diffuse, a.diffuse) > 70
 
 
-def test_device_pipeline_illuminant_options(bunny):
+def test_device_pipeline_illuminant_options(bunny, dev):
     small = bunny[:, :24, :24]
-    for dev in _devices():
-        for ill in ("white", (0.5, 0.3, 0.2)):
-            a = separate(small, method="tensor", illuminant=ill, workers=1)
-            b = separate(small, method="tensor", illuminant=ill, device=dev)
-            np.testing.assert_allclose(b.info["illuminant_chromaticity"], a.info["illuminant_chromaticity"])
-            assert _psnr(b.diffuse, a.diffuse) > 70
-        with pytest.raises(MethodError, match="illuminant 'blue'"):
-            separate(small, method="tensor", illuminant="blue", device=dev)
-        with pytest.raises(MethodError, match="three positive values"):
-            separate(small, method="tensor", illuminant=(0.5, 0.6, -0.1), device=dev)
+    for ill in ("white", (0.5, 0.3, 0.2)):
+        a = separate(small, method="tensor", illuminant=ill, workers=1)
+        b = separate(small, method="tensor", illuminant=ill, device=dev)
+        np.testing.assert_allclose(b.info["illuminant_chromaticity"], a.info["illuminant_chromaticity"])
+        assert _psnr(b.diffuse, a.diffuse) > 70
+    with pytest.raises(MethodError, match="illuminant 'blue'"):
+        separate(small, method="tensor", illuminant="blue", device=dev)
+    with pytest.raises(MethodError, match="three positive values"):
+        separate(small, method="tensor", illuminant=(0.5, 0.6, -0.1), device=dev)
 
 
-def test_device_end_to_end_small():
-    for dev in _devices():
-        stack, _ = _scene(12)
-        a = separate(stack, method="tensor")
-        b = separate(stack, method="tensor", device=dev)
-        np.testing.assert_allclose(b.diffuse, a.diffuse, atol=1e-2)
-        assert b.info["device"] == dev
+def test_device_end_to_end_small(dev):
+    stack, _ = _scene(12)
+    a = separate(stack, method="tensor")
+    b = separate(stack, method="tensor", device=dev)
+    np.testing.assert_allclose(b.diffuse, a.diffuse, atol=1e-2)
+    assert b.info["device"] == dev

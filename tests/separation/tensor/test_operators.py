@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 
 import numpy as np
 import pytest
@@ -213,14 +212,6 @@ def test_illuminant_from_the_polarized_light():
 # the same operators on PyTorch tensors
 # ---------------------------------------------------------------------------
 
-def _devices() -> list[str]:
-    torch = pytest.importorskip("torch")
-    env = os.environ.get("POLCAM_TEST_DEVICES")
-    if env:
-        return [d for d in env.split(",") if d]
-    return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
-
-
 @pytest.fixture(scope="module")
 def stack() -> np.ndarray:
     from polcam.synth.render import render
@@ -229,30 +220,29 @@ def stack() -> np.ndarray:
     return render(scene("Bunny6"), size=72, seed=3).stack
 
 
-def test_torch_operators_match_numpy(stack):
+def test_torch_operators_match_numpy(stack, dev):
     torch = pytest.importorskip("torch")
-    for dev in _devices():
-        def t(a):
-            return torch.as_tensor(np.ascontiguousarray(a), device=dev)
+    def t(a):
+        return torch.as_tensor(np.ascontiguousarray(a), device=dev)
 
-        gam = estimate_illuminant(stack)
-        assert not np.allclose(gam, 1 / 3)            # the scene has a coloured illuminant estimate
-        np.testing.assert_allclose(estimate_illuminant(t(stack).double()), gam, rtol=1e-10)
-        # no polarization at all: white, as numpy says
-        flat = np.repeat(stack.mean(axis=0, keepdims=True), 4, axis=0)
-        np.testing.assert_allclose(estimate_illuminant(t(flat).double()), estimate_illuminant(flat))
-        x = normalize_illuminant(stack, gam)
-        np.testing.assert_allclose(normalize_illuminant(t(stack), gam).cpu().numpy(), x, rtol=1e-15)
-        chro = polarization_chromaticity(x)
-        np.testing.assert_allclose(polarization_chromaticity(t(x)).cpu().numpy(), chro, atol=1e-12)
-        o1, f1 = representations(chro, n4=4, block=3, threshold=0.03, rng=np.random.default_rng(5))
-        o2, f2 = representations(t(chro), n4=4, block=3, threshold=0.03, rng=np.random.default_rng(5))
-        assert 0.3 < f1 < 1 and f2 == pytest.approx(f1)
-        np.testing.assert_array_equal(o2.cpu().numpy(), o1)
-        np.testing.assert_array_equal(gather(t(stack), o2).cpu().numpy(), gather(stack, o1))
-        d0 = np.random.default_rng(4).uniform(0, 1, (4, 4, 30, 41, 3)).astype(np.float32)
-        np.testing.assert_allclose(tau_weights(t(d0[0]), alpha=2.0, beta=0.25, floor=1e-3).cpu().numpy(),
-                                   tau_weights(d0[0], alpha=2.0, beta=0.25, floor=1e-3), rtol=2e-6)
-        z = unfold(np.random.default_rng(13).uniform(0, 1, (2, 4, 4, 5, 6, 3)))
-        np.testing.assert_array_equal(unfold(t(fold(z, 5, 6))).cpu().numpy(), z)
-        np.testing.assert_allclose(phase_project(t(z), 5, 6).cpu().numpy(), phase_project(z, 5, 6), atol=1e-12)
+    gam = estimate_illuminant(stack)
+    assert not np.allclose(gam, 1 / 3)            # the scene has a coloured illuminant estimate
+    np.testing.assert_allclose(estimate_illuminant(t(stack).double()), gam, rtol=1e-10)
+    # no polarization at all: white, as numpy says
+    flat = np.repeat(stack.mean(axis=0, keepdims=True), 4, axis=0)
+    np.testing.assert_allclose(estimate_illuminant(t(flat).double()), estimate_illuminant(flat))
+    x = normalize_illuminant(stack, gam)
+    np.testing.assert_allclose(normalize_illuminant(t(stack), gam).cpu().numpy(), x, rtol=1e-15)
+    chro = polarization_chromaticity(x)
+    np.testing.assert_allclose(polarization_chromaticity(t(x)).cpu().numpy(), chro, atol=1e-12)
+    o1, f1 = representations(chro, n4=4, block=3, threshold=0.03, rng=np.random.default_rng(5))
+    o2, f2 = representations(t(chro), n4=4, block=3, threshold=0.03, rng=np.random.default_rng(5))
+    assert 0.3 < f1 < 1 and f2 == pytest.approx(f1)
+    np.testing.assert_array_equal(o2.cpu().numpy(), o1)
+    np.testing.assert_array_equal(gather(t(stack), o2).cpu().numpy(), gather(stack, o1))
+    d0 = np.random.default_rng(4).uniform(0, 1, (4, 4, 30, 41, 3)).astype(np.float32)
+    np.testing.assert_allclose(tau_weights(t(d0[0]), alpha=2.0, beta=0.25, floor=1e-3).cpu().numpy(),
+                               tau_weights(d0[0], alpha=2.0, beta=0.25, floor=1e-3), rtol=2e-6)
+    z = unfold(np.random.default_rng(13).uniform(0, 1, (2, 4, 4, 5, 6, 3)))
+    np.testing.assert_array_equal(unfold(t(fold(z, 5, 6))).cpu().numpy(), z)
+    np.testing.assert_allclose(phase_project(t(z), 5, 6).cpu().numpy(), phase_project(z, 5, 6), atol=1e-12)
