@@ -220,6 +220,13 @@ def run_capture(
     stop = stop or threading.Event()
     abort = abort or threading.Event()
     layout = camera.layout
+    if separate == "default" and layout is None and rerun is None:
+        # frames of an unknown layout are still saved as sent (process can be given --layout);
+        # only an explicit --separate METHOD or --rerun needs the layout now
+        separate = None
+        if progress is not None:
+            progress({"message": f"camera {camera.camera_id}: polarizer layout unknown, so no live layers "
+                                 "(give --layout for them); the frames are saved as sent"})
     live_wanted = rerun is not None or separate is not None
     if live_wanted and layout is None:
         raise LayoutError(

@@ -54,7 +54,16 @@ def test_demo_runs_twice_into_the_same_folder(tmp_path):
 
 
 def test_replay_capture_of_plain_frames(plain, tmp_path):
-    r = polcam("capture", "--device", f"replay:{plain}", "--frames", "2", "--out", tmp_path / "c1")
+    # without a layout the frames are saved as sent (no live layers), saying how to get them
+    r = polcam("capture", "--device", f"replay:{plain}", "--frames", "2", "--out", tmp_path / "c0")
+    assert r.returncode == 0, r.stderr
+    assert "layout unknown" in r.stderr and "--layout" in r.stderr and "None" not in r.stdout
+    assert len(list((tmp_path / "c0").glob("frame_*.json"))) == 2
+    summary = json.loads((tmp_path / "c0" / "summary.json").read_text())
+    assert summary["frames_saved"] == 2 and summary["separation"] is None
+    # a live view asked for explicitly needs the layout now: refused, nothing created
+    r = polcam("capture", "--device", f"replay:{plain}", "--frames", "2", "--out", tmp_path / "c1",
+               "--separate", "imin")
     assert r.returncode == 2 and "--layout" in r.stderr and "None" not in r.stdout
     assert not (tmp_path / "c1").exists()
     r = polcam("capture", "--device", f"replay:{plain}", "--frames", "2", "--out", tmp_path / "c2",
