@@ -47,7 +47,6 @@ import numpy as np
 from polcam import __version__
 from polcam._hashing import sha256_file
 from polcam.errors import PolcamError
-from polcam.parallel import default_workers as parallel_default_workers
 from polcam.parallel import process_pool
 from polcam.pipeline import default_demosaic
 from polcam.sinks.files import FORMATS
@@ -520,7 +519,3 @@ def write_summary(out_dir: Path, summary: dict[str, Any]) -> Path:
         json.dump(summary, fh, indent=2)
     return out_dir / "summary.json"
 
-
-def default_workers() -> int:
-    """Worker processes used when none is asked for (:func:`polcam.parallel.default_workers`)."""
-    return parallel_default_workers()

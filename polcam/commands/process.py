@@ -22,6 +22,7 @@ def cmd_process(args: argparse.Namespace) -> int:
     import signal
 
     from polcam import process as proc
+    from polcam.parallel import default_workers
 
     opts = proc.ProcessOptions(
         method=args.method, method_options=parse_options(args.option),
@@ -91,7 +92,7 @@ def cmd_process(args: argparse.Namespace) -> int:
             progress.update(task, advance=1, rate=f"{counter['n'] / max(elapsed, 1e-9) * 60:.1f} frames/min")
 
     try:
-        workers = max(1, min(args.workers or proc.default_workers(), len(jobs)))
+        workers = max(1, min(args.workers or default_workers(), len(jobs)))
         results = proc.run(jobs, opts, workers=workers,
                            scheduler=args.scheduler, force=args.force, on_result=on_result,
                            stop=lambda: interrupted)

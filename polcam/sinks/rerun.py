@@ -327,7 +327,6 @@ class RerunSink:
         self._raw_calls = 0
         self._lock = threading.Lock()
         self.target = str(target)
-        self.url: str | None = None
         self.server: WebServer | None = None
         rec = rr.RecordingStream(application_id, recording_id=recording_id)
         bp = blueprint()
@@ -337,7 +336,6 @@ class RerunSink:
             rec.connect_grpc(native_viewer(bind=bind), default_blueprint=bp)
         elif self.target == "serve":
             self.server = WebServer(bind=bind, port=port, memory_limit=memory_limit)
-            self.url = self.server.url
             rec.connect_grpc(self.server.grpc_url, default_blueprint=bp)
         else:
             path = Path(self.target)
