@@ -42,7 +42,7 @@ def kind_of(path: str | Path) -> str:
         A path that is none of these (named, with what was expected).
     """
     from polcam.errors import FrameReadError
-    from polcam.io import RAW_EXTENSIONS
+    from polcam.io.listing import is_raw_file
 
     p = Path(path)
     expected = "an .rrd recording, a `polcam process` output folder or a folder of raw frames"
@@ -54,7 +54,7 @@ def kind_of(path: str | Path) -> str:
         raise FrameReadError(f"no such file or folder: expected {expected}", path=p)
     if (p / "meta.json").is_file() or any(True for _ in frame_folders(p)):
         return "processed"
-    if any(f.is_file() and f.suffix.lower() in RAW_EXTENSIONS and not f.name.startswith(".") for f in p.iterdir()):
+    if any(is_raw_file(f) for f in p.iterdir()):
         return "raw"
     raise FrameReadError(f"holds neither frame folders with meta.json nor raw frames: expected {expected}", path=p)
 
@@ -66,13 +66,6 @@ def frame_folders(root: str | Path) -> Iterator[Path]:
         yield root
         return
     yield from sorted(m.parent for m in root.rglob("meta.json"))
-
-
-def _raw_files(root: Path) -> list[Path]:
-    from polcam.io import RAW_EXTENSIONS
-
-    return sorted(f for f in root.iterdir()
-                  if f.is_file() and f.suffix.lower() in RAW_EXTENSIONS and not f.name.startswith("."))
 
 
 def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | None = None,
@@ -108,25 +101,20 @@ def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | N
         return n
     if kind != "raw":
         raise ValueError(f"{path}: log_path takes a folder, not an {kind} file")
-    import numpy as np
-
-    import polcam
-    from polcam import stokes as st
     from polcam.errors import LayoutError
     from polcam.io import read_frame
+    from polcam.io.listing import raw_files_in
+    from polcam.pipeline import run_frame
 
-    for i, f in enumerate(_raw_files(Path(path))):
+    for i, f in enumerate(raw_files_in(path)):
         if stop and stop():
             break
         frame = read_frame(f)
         if frame.layout is None:
             raise LayoutError("no layout: the file has no sidecar saying it (write one, or view it through "
                               "`polcam process --layout NAME`)", path=f)
-        stack = polcam.demosaic(frame, resolution="cell")
-        s = st.stokes(stack)
-        res = polcam.separate(np.clip(stack, 0.0, 1.0))
-        products = {"s0": s.s0, "dolp": st.dolp(s), "aolp": st.aolp(s),
-                    "diffuse": res.diffuse, "specular": res.specular}
+        # the per-frame pipeline with process's defaults (cell resolution, default methods)
+        products = run_frame(frame, resolution="cell", separate=True).products
         ts = frame.metadata.get("timestamp_ns")
         sink.log_products(i, products, timestamp_ns=None if ts is None else int(ts), frame=frame)
         n += 1
