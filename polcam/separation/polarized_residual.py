@@ -60,6 +60,7 @@ DEFAULTS: dict[str, Any] = {
     "min_saturation": 0.04,      # below: achromatic (no hue)
     "polarized_threshold": 0.02,  # polarized specular / intensity that marks a highlight neighbourhood
     "max_ratio": 4.0,
+    "noise": "shrink",           # how the amplitude's noise bias is removed: "off", "rice", "shrink", "thresh"
     "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"            # unpolarized specular residual <= max_ratio x the polarized specular nearby
 }
 
@@ -82,6 +83,9 @@ def _check(opts: dict[str, Any]) -> None:
         arr = np.asarray(g, dtype=np.float64).reshape(-1)
         if arr.size != 3 or not np.all(np.isfinite(arr)) or np.any(arr <= 0):
             raise MethodError(f"polarized-residual: illuminant={g!r}: expected three positive numbers (R, G, B)")
+
+
+_DBG: dict = {}
 
 
 def _odd(n: float) -> int:
@@ -151,6 +155,9 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         q = q / eff.astype(np.float32)
         u = u / eff.astype(np.float32)
     isv = np.hypot(q, u)
+    if opts["noise"] != "off":
+        sig = _stokes_noise(q, u, ic)
+        isv = _debias(isv, sig, opts["noise"])
     imin = np.maximum(ic - isv, 0.0)
 
     # 1. coherent polarization: Stokes components smoothed over a few pixels (demosaicing and noise
@@ -203,9 +210,13 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         take = well & sig_off & ((al * be < 0) | dom)
         a = np.where(take, np.where(al * be < 0, np.abs(al), 0.0), a).astype(np.float32)
         b = np.where(take, np.abs(be), 0.0).astype(np.float32)
-    a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
     ub = np.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)
+    # the bound is met by more of the one specular colour, not by clipping channels one by one (which
+    # would give the specular layer the colours of the channels' polarization errors)
+    a = np.maximum(a, ((ic - ub) / g).max(axis=-1))
+    a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
     resid = np.clip(ic - a[..., None] * g, 0.0, ub)         # polarized specular light removed
+    _DBG["imin"] = imin; _DBG["resid"] = resid
 
     # 3. where coherent polarized specular light is (highlights)
     lum = ic.mean(axis=-1)
@@ -275,6 +286,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     r = gate * k_loc * a_pix
     r = np.minimum(r, (resid / g).min(axis=-1))             # diffuse >= 0 in every channel
     diffuse = np.clip(resid - r[..., None] * g, 0.0, ub)
+    _DBG["after_k"] = diffuse
     if opts["residual_model"] == "shen13":
         # coloured pixels: Shen & Zheng's (2013) specular-free clustering applied to the residual only,
         # in the illuminant-normalised space (where the residual specular light is white), never
@@ -296,6 +308,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
             sat_w = np.linalg.norm(cb, axis=-1)
             wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)[..., None]
             diffuse = wgt * np.minimum(sf, diffuse) + (1.0 - wgt) * diffuse
+    _DBG["after_shen"] = diffuse
     # saturated pixels (a channel at the white level in all four angles): that channel's polarization
     # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
     # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
@@ -325,6 +338,55 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     if est is not None:
         info["polarized_colour"] = [float(x) for x in est.polarized]
     return diffuse.astype(np.float32), info
+
+
+def _stokes_noise(q: np.ndarray, u: np.ndarray, ic: np.ndarray) -> np.ndarray:
+    """Standard deviation of the noise of q and u per pixel, (H, W[, C]) like ``q``.
+
+    The residual of a 3 x 3 box mean, ``q - box(q)``, of an independent noise field has variance
+    ``sigma^2 (1 - 1/9)``; its robust spread (1.4826 x the median absolute value) over pixels of
+    similar intensity (eight quantile bins of ``ic``) gives ``sigma`` at that intensity (photon noise
+    grows with the signal), linearly interpolated in ``ic``.  Texture and edges of the polarization
+    itself fall in the tails the median ignores.
+    """
+    shape = q.shape
+    q2 = q.reshape(shape[0], shape[1], -1)
+    u2 = u.reshape(shape[0], shape[1], -1)
+    i2 = ic.reshape(shape[0], shape[1], -1)
+    out = np.empty_like(q2)
+    f = np.sqrt(8.0 / 9.0)
+    for c in range(q2.shape[-1]):
+        hp = np.concatenate([(q2[..., c] - cv2.blur(q2[..., c], (3, 3))).ravel(),
+                             (u2[..., c] - cv2.blur(u2[..., c], (3, 3))).ravel()])
+        lev = np.concatenate([i2[..., c].ravel(), i2[..., c].ravel()])
+        edges = np.quantile(lev, np.linspace(0, 1, 9))
+        idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, 7)
+        centres, sig = [], []
+        for b in range(8):
+            m = idx == b
+            if m.sum() >= 50:
+                centres.append(float(np.median(lev[m])))
+                sig.append(1.4826 * float(np.median(np.abs(hp[m]))) / f)
+        if not centres:
+            out[..., c] = 0.0
+            continue
+        sig_m = np.maximum.accumulate(np.asarray(sig))   # noise does not fall as the signal rises
+        out[..., c] = np.interp(i2[..., c], centres, sig_m).astype(np.float32)
+    return out.reshape(shape)
+
+
+_K = 2.5
+
+
+def _debias(isv: np.ndarray, sig: np.ndarray, how: str) -> np.ndarray:
+    """The polarized amplitude with the noise's bias removed (``isv``, ``sig`` same shape)."""
+    if how == "rice":      # E|A|^2 = a^2 + 2 sigma^2
+        return np.sqrt(np.maximum(isv * isv - 2.0 * sig * sig, 0.0))
+    if how == "shrink":
+        return isv * np.clip(1.0 - _K * _K * sig * sig / np.maximum(isv * isv, 1e-12), 0.0, 1.0)
+    if how == "thresh":
+        return np.maximum(isv - _K * sig, 0.0)
+    raise MethodError(f"polarized-residual: noise={how!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
 
 
 def _inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
