@@ -120,8 +120,10 @@ def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None)
 def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:
     """Own colour of the brightest unsaturated polarized pixels (the highlights).
 
-    Among pixels with no saturated sample whose degree of polarization is above
-    the median, the brightest ``share`` (by mean intensity) are averaged.
+    Among lit pixels (mean intensity above 5 % of the 99th percentile: a dark background's
+    noise has a large, meaningless degree of polarization) with no saturated sample whose
+    degree of polarization is above their median, the brightest ``share`` (by mean
+    intensity) are averaged.
 
     Returns
     -------
@@ -132,6 +134,8 @@ def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:
     lum = ic.mean(axis=-1)
     dolp = isv.mean(axis=-1) / np.maximum(lum, 1e-6)
     ok = unsat & (lum > 0)
+    if ok.any():
+        ok &= lum > 0.05 * np.quantile(lum, 0.99)
     if not ok.any():
         return np.full(3, np.nan)
     ok &= dolp >= np.median(dolp[ok])

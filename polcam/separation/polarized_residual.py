@@ -155,8 +155,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         q = q / eff.astype(np.float32)
         u = u / eff.astype(np.float32)
     isv = np.hypot(q, u)
+    sig = _stokes_noise(s, ic)
     if opts["noise"] != "off":
-        sig = _stokes_noise(q, u, ic)
         isv = _debias(isv, sig, opts["noise"])
     imin = np.maximum(ic - isv, 0.0)
 
@@ -340,42 +340,57 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     return diffuse.astype(np.float32), info
 
 
-def _stokes_noise(q: np.ndarray, u: np.ndarray, ic: np.ndarray) -> np.ndarray:
-    """Standard deviation of the noise of q and u per pixel, (H, W[, C]) like ``q``.
+def _stokes_noise(stack: np.ndarray, ic: np.ndarray) -> np.ndarray:
+    """Standard deviation of the noise of q and u per pixel, (H, W[, C]) like ``ic``.
 
-    The residual of a 3 x 3 box mean, ``q - box(q)``, of an independent noise field has variance
-    ``sigma^2 (1 - 1/9)``; its robust spread (1.4826 x the median absolute value) over pixels of
-    similar intensity (eight quantile bins of ``ic``) gives ``sigma`` at that intensity (photon noise
-    grows with the signal), linearly interpolated in ``ic``.  Texture and edges of the polarization
-    itself fall in the tails the median ignores.
+    An ideal linear-polarizer stack obeys ``I0 + I90 = I45 + I135`` (both are S0) whatever the
+    scene, so ``r = (I0 + I90 - I45 - I135) / 2`` is noise only: with independent noise of
+    deviation ``sigma_I`` per image, ``var r = sigma_I^2`` and ``var q = var u = sigma_I^2 / 2``.
+    A real stack can break the identity systematically (unequal gains of the four polarizer
+    images, misregistration), while a smooth signal leaves a residual in any spatial high-pass;
+    so the estimate is the smaller of two: the consistency residual's ``|r| / sqrt 2``, and the
+    residual of a 3 x 3 box mean of q and u (``q - box(q)`` has variance ``sigma^2 (1 - 1/9)`` for
+    independent noise; a smooth gain error leaves nothing there).  Each is a robust spread
+    (1.4826 x the median absolute value) over pixels of similar intensity (eight quantile bins of
+    ``ic``: photon noise grows with the signal, so it is taken non-decreasing in the intensity),
+    linearly interpolated in ``ic``.
     """
-    shape = q.shape
-    q2 = q.reshape(shape[0], shape[1], -1)
-    u2 = u.reshape(shape[0], shape[1], -1)
-    i2 = ic.reshape(shape[0], shape[1], -1)
-    out = np.empty_like(q2)
-    f = np.sqrt(8.0 / 9.0)
-    for c in range(q2.shape[-1]):
-        hp = np.concatenate([(q2[..., c] - cv2.blur(q2[..., c], (3, 3))).ravel(),
-                             (u2[..., c] - cv2.blur(u2[..., c], (3, 3))).ravel()])
-        lev = np.concatenate([i2[..., c].ravel(), i2[..., c].ravel()])
-        edges = np.quantile(lev, np.linspace(0, 1, 9))
-        idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, 7)
-        centres, sig = [], []
-        for b in range(8):
-            m = idx == b
-            if m.sum() >= 50:
-                centres.append(float(np.median(lev[m])))
-                sig.append(1.4826 * float(np.median(np.abs(hp[m]))) / f)
-        if not centres:
-            out[..., c] = 0.0
-            continue
-        sig_m = np.maximum.accumulate(np.asarray(sig))   # noise does not fall as the signal rises
-        out[..., c] = np.interp(i2[..., c], centres, sig_m).astype(np.float32)
+    s = np.asarray(stack, dtype=np.float32)
+    shape = ic.shape
+    flat = (shape[0], shape[1], -1)
+    q = (0.5 * (s[0] - s[2])).reshape(flat)
+    u = (0.5 * (s[1] - s[3])).reshape(flat)
+    r = (0.5 * (s[0] + s[2] - s[1] - s[3])).reshape(flat)
+    i2 = ic.reshape(flat)
+    out = np.empty(i2.shape, dtype=np.float32)
+    for c in range(i2.shape[-1]):
+        lev = i2[..., c]
+        hp_q = np.abs(q[..., c] - cv2.blur(q[..., c], (3, 3)))
+        hp_u = np.abs(u[..., c] - cv2.blur(u[..., c], (3, 3)))
+        sig_r = _binned_spread(lev, np.abs(r[..., c]) / np.sqrt(2.0))
+        sig_hp = _binned_spread(lev, np.sqrt(9.0 / 8.0) * 0.5 * (hp_q + hp_u))
+        out[..., c] = np.minimum(sig_r, sig_hp)
     return out.reshape(shape)
 
 
-_K = 2.5
+def _binned_spread(level: np.ndarray, absres: np.ndarray, bins: int = 8) -> np.ndarray:
+    """Robust deviation of a zero-mean residual as a non-decreasing function of ``level`` (both (H, W))."""
+    lev = level.ravel()
+    res = absres.ravel()
+    edges = np.quantile(lev, np.linspace(0, 1, bins + 1))
+    idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, bins - 1)
+    centres, sig = [], []
+    for b in range(bins):
+        m = idx == b
+        if m.sum() >= 50:
+            centres.append(float(np.median(lev[m])))
+            sig.append(1.4826 * float(np.median(res[m])))
+    if not centres:
+        return np.zeros(level.shape, np.float32)
+    return np.interp(level, centres, np.maximum.accumulate(np.asarray(sig))).astype(np.float32)
+
+
+_KSIG = 2.5   # noise multiple of the non-negative garrote (debias)
 
 
 def _debias(isv: np.ndarray, sig: np.ndarray, how: str) -> np.ndarray:
@@ -383,9 +398,9 @@ def _debias(isv: np.ndarray, sig: np.ndarray, how: str) -> np.ndarray:
     if how == "rice":      # E|A|^2 = a^2 + 2 sigma^2
         return np.sqrt(np.maximum(isv * isv - 2.0 * sig * sig, 0.0))
     if how == "shrink":
-        return isv * np.clip(1.0 - _K * _K * sig * sig / np.maximum(isv * isv, 1e-12), 0.0, 1.0)
+        return isv * np.clip(1.0 - _KSIG * _KSIG * sig * sig / np.maximum(isv * isv, 1e-12), 0.0, 1.0)
     if how == "thresh":
-        return np.maximum(isv - _K * sig, 0.0)
+        return np.maximum(isv - _KSIG * sig, 0.0)
     raise MethodError(f"polarized-residual: noise={how!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
 
 
