@@ -59,9 +59,9 @@ DEFAULTS: dict[str, Any] = {
     "hue_bins": 24,
     "min_saturation": 0.04,      # below: achromatic (no hue)
     "polarized_threshold": 0.02,  # polarized specular / intensity that marks a highlight neighbourhood
-    "max_ratio": 4.0,
-    "noise": "shrink",           # how the amplitude's noise bias is removed: "off", "rice", "shrink", "thresh"
-    "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"            # unpolarized specular residual <= max_ratio x the polarized specular nearby
+    "max_ratio": 4.0,            # unpolarized specular residual <= max_ratio x the polarized specular nearby
+    "noise": "shrink",           # the amplitude's noise bias: "off", "rice", "shrink" (garrote) or "thresh"
+    "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"
 }
 
 
@@ -73,6 +73,8 @@ def _check(opts: dict[str, Any]) -> None:
     mr = opts["max_ratio"]
     if isinstance(mr, bool) or not isinstance(mr, (int, float, np.floating)) or not 0 <= float(mr) < 1e3:
         raise MethodError(f"polarized-residual: max_ratio={mr!r}: expected a number in [0, 1000)")
+    if opts["noise"] not in ("off", "rice", "shrink", "thresh"):
+        raise MethodError(f"polarized-residual: noise={opts['noise']!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
     if opts["residual_model"] not in ("shen13", "hue"):
         raise MethodError(f"polarized-residual: residual_model={opts['residual_model']!r}: expected 'shen13' or 'hue'")
     hb = opts["hue_bins"]
@@ -85,7 +87,6 @@ def _check(opts: dict[str, Any]) -> None:
             raise MethodError(f"polarized-residual: illuminant={g!r}: expected three positive numbers (R, G, B)")
 
 
-_DBG: dict = {}
 
 
 def _odd(n: float) -> int:
@@ -216,7 +217,6 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     a = np.maximum(a, ((ic - ub) / g).max(axis=-1))
     a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
     resid = np.clip(ic - a[..., None] * g, 0.0, ub)         # polarized specular light removed
-    _DBG["imin"] = imin; _DBG["resid"] = resid
 
     # 3. where coherent polarized specular light is (highlights)
     lum = ic.mean(axis=-1)
@@ -286,7 +286,6 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     r = gate * k_loc * a_pix
     r = np.minimum(r, (resid / g).min(axis=-1))             # diffuse >= 0 in every channel
     diffuse = np.clip(resid - r[..., None] * g, 0.0, ub)
-    _DBG["after_k"] = diffuse
     if opts["residual_model"] == "shen13":
         # coloured pixels: Shen & Zheng's (2013) specular-free clustering applied to the residual only,
         # in the illuminant-normalised space (where the residual specular light is white), never
@@ -308,7 +307,6 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
             sat_w = np.linalg.norm(cb, axis=-1)
             wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)[..., None]
             diffuse = wgt * np.minimum(sf, diffuse) + (1.0 - wgt) * diffuse
-    _DBG["after_shen"] = diffuse
     # saturated pixels (a channel at the white level in all four angles): that channel's polarization
     # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
     # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
