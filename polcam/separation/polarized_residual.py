@@ -360,21 +360,28 @@ def _stokes_noise(stack: np.ndarray, ic: np.ndarray) -> np.ndarray:
     u = (0.5 * (s[1] - s[3])).reshape(flat)
     r = (0.5 * (s[0] + s[2] - s[1] - s[3])).reshape(flat)
     i2 = ic.reshape(flat)
+    valid = (s.max(axis=0) < _SATURATED).reshape(flat)      # clipping breaks both identities
     out = np.empty(i2.shape, dtype=np.float32)
     for c in range(i2.shape[-1]):
         lev = i2[..., c]
         hp_q = np.abs(q[..., c] - cv2.blur(q[..., c], (3, 3)))
         hp_u = np.abs(u[..., c] - cv2.blur(u[..., c], (3, 3)))
-        sig_r = _binned_spread(lev, np.abs(r[..., c]) / np.sqrt(2.0))
-        sig_hp = _binned_spread(lev, np.sqrt(9.0 / 8.0) * 0.5 * (hp_q + hp_u))
+        sig_r = _binned_spread(lev, np.abs(r[..., c]) / np.sqrt(2.0), valid[..., c])
+        sig_hp = _binned_spread(lev, np.sqrt(9.0 / 8.0) * 0.5 * (hp_q + hp_u), valid[..., c])
         out[..., c] = np.minimum(sig_r, sig_hp)
     return out.reshape(shape)
 
 
-def _binned_spread(level: np.ndarray, absres: np.ndarray, bins: int = 8) -> np.ndarray:
-    """Robust deviation of a zero-mean residual as a non-decreasing function of ``level`` (both (H, W))."""
-    lev = level.ravel()
-    res = absres.ravel()
+def _binned_spread(level: np.ndarray, absres: np.ndarray, valid: np.ndarray, bins: int = 8) -> np.ndarray:
+    """Robust deviation of a zero-mean residual as a non-decreasing function of ``level``.
+
+    ``level``, ``absres`` (the residual's absolute value) and ``valid`` (which pixels to learn
+    from) are (H, W); the result, (H, W) float32, is defined at every pixel.
+    """
+    lev = level[valid]
+    res = absres[valid]
+    if lev.size == 0:
+        return np.zeros(level.shape, np.float32)
     edges = np.quantile(lev, np.linspace(0, 1, bins + 1))
     idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, bins - 1)
     centres, sig = [], []
