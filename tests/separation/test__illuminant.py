@@ -55,6 +55,25 @@ def test_highlight_colour_of_a_white_highlight_on_grey():
     assert np.all(np.isnan(highlight_colour(np.ones((4, 8, 8, 3)))))   # everything saturated
 
 
+def test_highlight_colour_ignores_a_dark_noisy_background():
+    # a tinted highlight on a bluish object (its colour near neutral under the tint) against a
+    # black background whose noise has a large degree of polarization: the highlights are the
+    # object's brightest polarized pixels, not the background's noise
+    rng = np.random.default_rng(0)
+    g = np.array([1.0, 0.75, 0.5])
+    st = _stack(g, diffuse=(0.25, 0.225, 0.175), rho=0.5)
+    yy, xx = np.mgrid[:40, :40]
+    obj = ((yy - 20) ** 2 + (xx - 20) ** 2) < 14 ** 2
+    st = np.where(obj[None, :, :, None], st, 0.0)
+    noisy = np.clip(st + rng.normal(0.0, 2e-4, st.shape), 0.0, 1.0)
+    hc = highlight_colour(noisy)
+    want = np.asarray(st.mean(0)[20, 20], float)
+    np.testing.assert_allclose(hc, want / want.mean(), atol=0.02)
+    est = estimate_illuminant(noisy)
+    assert est.source == "polarized"
+    np.testing.assert_allclose(est.colour, g / g.mean(), atol=0.02)
+
+
 def test_estimate_sources():
     g = np.array([1.2, 1.0, 0.8])
     e = estimate_illuminant(_stack(g, diffuse=(0.2, 0.2, 0.2), rho=1.0))

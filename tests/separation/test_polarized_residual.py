@@ -139,7 +139,43 @@ def test_diffuse_bounds_and_one_specular_colour():
     assert res.info["illuminant_source"] in ("polarized", "highlights")
 
 
-@pytest.mark.parametrize("opt", [{"context": 0}, {"hue_bins": 2}, {"max_ratio": -1},
+def test_noise_estimate_matches_the_planted_deviation():
+    from polcam.separation.polarized_residual import _stokes_noise
+
+    rng = np.random.default_rng(5)
+    d = _scene(96, 128)
+    spec = 0.3 * (_bump(96, 128, 30, 30, 6) + _bump(96, 128, 60, 90, 8))
+    st = _stack(d, spec, (1, 1, 1), rho_s=0.6, phi_s=0.4)
+    sigma_i = 0.01
+    noisy = st + rng.normal(0.0, sigma_i, st.shape)
+    sig = _stokes_noise(noisy.astype(np.float32), noisy.mean(0).astype(np.float32))
+    # q = (I0 - I90) / 2 has deviation sigma_I / sqrt 2
+    np.testing.assert_allclose(np.median(sig), sigma_i / np.sqrt(2), rtol=0.1)
+    # a noise-free stack, highlights and all: no noise
+    assert np.max(_stokes_noise(st.astype(np.float32), st.mean(0).astype(np.float32))) < 1e-6
+    # a stack whose four images have unequal gains breaks I0 + I90 = I45 + I135 everywhere, but the
+    # spatial high-pass of q and u sees no noise: the estimate stays near zero
+    gains = np.array([1.03, 1.0, 0.98, 1.0])[:, None, None, None]
+    assert np.median(_stokes_noise((st * gains).astype(np.float32), st.mean(0).astype(np.float32))) < 2e-3
+
+
+def test_noise_is_not_removed_as_polarized_light():
+    # an unpolarized scene with noise: Isv is the noise's amplitude, whose mean is positive; the
+    # garrote takes it out, so the diffuse stays unbiased where Imin is biased low
+    rng = np.random.default_rng(2)
+    d = _scene(96, 128)
+    st = _stack(d, np.zeros(d.shape[:2]), (1, 1, 1), rho_s=0.0, phi_s=0.0)
+    noisy = st + rng.normal(0.0, 0.005, st.shape)
+    ours = polcam.separate(noisy, method="polarized-residual").diffuse
+    off = polcam.separate(noisy, method="polarized-residual", noise="off").diffuse
+    imin = polcam.separate(noisy, method="imin").diffuse
+    bias = lambda x: float(np.mean(x - d))  # noqa: E731
+    assert bias(imin) < -0.004                        # the Rayleigh mean of the noise amplitude
+    assert abs(bias(ours)) < 0.3 * abs(bias(off))
+    assert abs(bias(ours)) < 0.0015
+
+
+@pytest.mark.parametrize("opt", [{"context": 0}, {"hue_bins": 2}, {"max_ratio": -1}, {"noise": "median"},
                                  {"illuminant": (1, 0, 1)}, {"polarized_threshold": 2}])
 def test_bad_options(opt):
     st = np.zeros((4, 8, 8, 3))
