@@ -42,6 +42,9 @@ __all__ = ["IlluminantEstimate", "polarized_colour", "highlight_colour", "estima
 #: Chromaticity distance under which the polarized light's colour is trusted.
 TOLERANCE = 0.04
 _SATURATED = 0.98
+#: Chromaticity distance from the surface's own colour over which polarized light counts in full
+#: as the illuminant's (:func:`projected_chromaticity`'s ``own_colour``).
+OWN_COLOUR = 0.1
 
 
 class IlluminantEstimate(NamedTuple):
@@ -114,7 +117,7 @@ def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None)
     """
     _parts(stack)  # shape check
     eff = None if efficiency is None else _check_efficiency(efficiency)
-    return _unit_mean(projected_chromaticity(stack, efficiency=eff))
+    return _unit_mean(projected_chromaticity(stack, efficiency=eff, own_colour=OWN_COLOUR))
 
 
 def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:
@@ -188,7 +191,8 @@ def estimate_illuminant(stack: np.ndarray, *, efficiency: object = None,
     return IlluminantEstimate(hi, eff, "highlights", pol, hi)
 
 
-def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency: Any = None) -> np.ndarray:
+def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency: Any = None,
+                           own_colour: float | None = None) -> np.ndarray:
     """Illuminant chromaticity from the polarized light.
 
     Diffuse reflection is (close to) unpolarized, so the linear polarization
@@ -216,6 +220,13 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
         How many standard deviations of the noise the signal must exceed.
     efficiency
         (3,) per-colour polarizer efficiency in (0, 1] (``v_c`` is divided by it), or None (ideal).
+    own_colour
+        None, or a chromaticity distance ``d``: each pixel's term is then weighted by
+        ``min(|chroma(T5) - chroma(Imin)| / d, 1)``, ``T5`` the terms box-averaged over 5 x 5 pixels
+        and ``Imin`` the pixel's polarization minimum: polarized light with the colour of the
+        surface it leaves is the surface's own, partially polarized diffuse light (Atkinson &
+        Hancock 2006), not evidence of the illuminant.  The weights are dropped when they keep
+        less than 5 % of the pixels (a white scene: there the surface's colour is the light's).
 
     Returns
     -------
@@ -233,6 +244,9 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
     box = sum(p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
     terms = xp.einsum("hwcj,hwj->hwc", v, box - vs)             # (H, W, 3)
     ok = xp.amax(x, axis=(0, 3)) < 0.98
+    if own_colour is not None:
+        terms, ok = _own_colour_weighted(xp.to_numpy(terms), xp.to_numpy(x), xp.to_numpy(ok), float(own_colour))
+        xp = namespace(terms)
     t = terms[ok]
     if t.shape[0] == 0:
         return np.full(3, 1 / 3)
@@ -241,3 +255,21 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
     if total.sum() <= significance * noise or np.any(total <= 0):
         return np.full(3, 1 / 3)
     return total / total.sum()
+
+
+def _own_colour_weighted(terms: np.ndarray, x: np.ndarray, ok: np.ndarray,
+                         dist: float) -> tuple[np.ndarray, np.ndarray]:
+    """The projection terms weighted against the surface's own colour (``projected_chromaticity``)."""
+    import cv2
+
+    ic = x.mean(axis=0)
+    imin = np.maximum(ic - 0.5 * np.hypot(x[0] - x[2], x[1] - x[3]), 0.0)
+    e = imin / np.maximum(imin.sum(axis=-1, keepdims=True), 1e-12)
+    tb = np.stack([cv2.blur(terms[..., c].astype(np.float64), (5, 5)) for c in range(3)], axis=-1)
+    ts = tb.sum(axis=-1, keepdims=True)
+    big = np.abs(ts) > 1e-12
+    chroma = np.where(big, tb / np.where(big, ts, 1.0), 1.0 / 3.0)
+    w = np.clip(np.linalg.norm(chroma - e, axis=-1) / dist, 0.0, 1.0)
+    if float(w[ok].sum()) < 0.05 * max(int(ok.sum()), 1):
+        return terms, ok
+    return terms * w[..., None], ok
