@@ -62,7 +62,8 @@ __all__ = ["BLOCK", "CANONICAL", "LMMSE_PARAMS", "NBLOCKS", "REFERENCE", "WEIGHT
 REFERENCE = ("LMMSE demosaicing after N. Spote, P.-J. Lapray, J.-B. Thomas, I. Farup, \"Joint demosaicing "
              "of colour and polarisation from filter arrays\", CIC 2021 (and P. Amba, J. Dias, "
              "D. Alleysson, \"Random color filter arrays are better than regular ones\", JIST 2016), "
-             "filters learned from polcam's own rendered scenes")
+             "filters learned from polcam's own rendered scenes and public-domain photographs with simulated "
+             "polarization")
 
 #: Block side in pixels: outputs are computed per 4x4 block of the raw.
 BLOCK = 4
