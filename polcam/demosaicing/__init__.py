@@ -33,7 +33,7 @@ from polcam.demosaicing._registry import (
 )
 
 #: Modules of this package that are not methods.
-_NOT_METHODS = frozenset({"training", "validation"})
+_NOT_METHODS = frozenset({"photos", "training", "validation"})
 
 for _mod in pkgutil.iter_modules(__path__):
     if not _mod.name.startswith("_") and _mod.name not in _NOT_METHODS:

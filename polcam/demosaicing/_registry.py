@@ -67,7 +67,7 @@ _ORDER = ("bilinear", "eari", "lmmse")
 #: The method :func:`demosaic` runs when none is named, per kind of layout: the best
 #: polcam has (docs/benchmarks.md backs the choice); process, capture and the demo use
 #: the same.
-_DEFAULTS = {"color": "lmmse", "mono": "eari"}
+_DEFAULTS = {"color": "lmmse-eari", "mono": "eari"}
 
 
 def register(name: str, *, cell: DemosaicFn | None = None, mono: bool = True, color: bool = True,

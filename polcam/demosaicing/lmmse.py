@@ -16,7 +16,8 @@ As implemented here (docs/demosaic.md has the details):
   block are one linear map of the 12 x 12 raw samples of the block and its eight
   neighbours (144 inputs): one matrix product per frame.
 * The filters are fit by constrained least squares (:mod:`polcam.demosaicing.training`)
-  on scenes polcam renders itself (no third-party images), so the weights can ship.
+  on scenes polcam renders itself and on public-domain / CC0 photographs with simulated
+  polarization (:mod:`polcam.demosaicing.photos`), so the weights can ship.
   Constraints: a pixel's own sample is kept exactly; the weights each output puts on
   each (angle, colour) lattice sum to 1 on its own lattice and 0 on the others, so a
   uniformly polarized, uniformly coloured scene comes back exactly whatever the
@@ -25,7 +26,8 @@ As implemented here (docs/demosaic.md has the details):
   exactly.
 * A second stage (:func:`second_stage`) re-estimates every angle from its own
   samples with the bank's S0 as guide: the polarization ratio ``I / (S0 / 2)``
-  (colour) is interpolated by Gaussian normalised convolution and multiplied back.
+  (colour) is interpolated by normalised convolution (the lattice's bilinear tent
+  smoothed by a Gaussian: affine ratios come back exactly) and multiplied back.
   The ratio is ``1 + DoLP cos(2 (theta - AoLP))``, free of the intensity's texture,
   so this is where the DoLP and AoLP gain comes from (after the Stokes-domain and
   polarization-difference ideas of Qiu et al. 2019 and Li et al. 2019).
@@ -60,7 +62,8 @@ __all__ = ["BLOCK", "CANONICAL", "LMMSE_PARAMS", "NBLOCKS", "REFERENCE", "WEIGHT
 REFERENCE = ("LMMSE demosaicing after N. Spote, P.-J. Lapray, J.-B. Thomas, I. Farup, \"Joint demosaicing "
              "of colour and polarisation from filter arrays\", CIC 2021 (and P. Amba, J. Dias, "
              "D. Alleysson, \"Random color filter arrays are better than regular ones\", JIST 2016), "
-             "filters learned from polcam's own rendered scenes")
+             "filters learned from polcam's own rendered scenes and public-domain photographs with simulated "
+             "polarization")
 
 #: Block side in pixels: outputs are computed per 4x4 block of the raw.
 BLOCK = 4
@@ -294,6 +297,11 @@ LMMSE_PARAMS: dict[str, float | str] = {
     "mono_sigma": 1.0,
     # offset of the ratio's denominator, relative to the mean of the mosaic
     "ratio_eps": 1e-2,
+    # kernel of the normalised convolution: "gauss" (a Gaussian of ``sigma`` / ``mono_sigma``) or
+    # "tent" (the lattice's bilinear tent, radius = the lattice period, convolved with a Gaussian
+    # of ``tent_sigma``: ratios that are affine in x and y come back exactly)
+    "kernel": "tent",
+    "tent_sigma": 1.5,
 }
 
 
@@ -301,6 +309,21 @@ def _gauss(sigma: float) -> np.ndarray:
     """Gaussian kernel of ``sigma`` pixels truncated at 2.5 sigma, float32."""
     r = max(1, int(np.ceil(2.5 * sigma)))
     k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    return (k / k.sum()).astype(np.float32)
+
+
+def _tent_kernel(period: int, sigma: float) -> np.ndarray:
+    """The tent ``tri(d / period)`` convolved with a Gaussian of ``sigma`` pixels (none if
+    ``sigma`` is 0), float32, sum 1.
+
+    On a lattice of that period the tent's copies sum to a constant and their first moments
+    vanish at every pixel (its spectrum has double zeros at the lattice's non-zero
+    frequencies); convolving with any kernel keeps both, so normalised convolution with this
+    kernel reproduces affine functions exactly."""
+    d = np.arange(-(period - 1), period, dtype=np.float64)
+    k = np.maximum(0.0, 1.0 - np.abs(d) / period)
+    if sigma > 0:
+        k = np.convolve(k, _gauss(sigma).astype(np.float64))
     return (k / k.sum()).astype(np.float32)
 
 
@@ -312,13 +335,12 @@ def _indicator_blur(n: int, offset: int, period: int, kernel: np.ndarray) -> np.
 
 
 def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, sigma: float,
-                 eps: float) -> np.ndarray:
+                 eps: float, kernel: str = "gauss") -> np.ndarray:
     """Re-estimate every angle from its own samples, with S0 from ``stack`` as the guide.
 
     ``mode="ratio"``: the polarization ratio ``q = I / (S0 / 2 + e)`` of each (angle,
     colour) lattice's samples (S0 of the sample's own colour, clipped to [0, 2]) is
-    interpolated by Gaussian normalised convolution (``sigma`` pixels, truncated at
-    2.5 sigma) and multiplied back by ``S0 / 2 + e``;
+    interpolated by normalised convolution and multiplied back by ``S0 / 2 + e``;
     ``"difference"``: the polarization difference ``I - S0 / 2`` is interpolated and
     added back.  Both vary much more slowly than the intensity where the
     polarization is smooth (the ratio is ``1 + DoLP cos(2 (theta - AoLP))``, free of
@@ -330,6 +352,16 @@ def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, 
         (H, W) float32 mosaic.
     stack
         (4, H, W, C) first-stage estimate (C = 3 colour, 1 mono).
+    mode
+        "ratio" or "difference".
+    sigma
+        ``kernel="gauss"``: the Gaussian (pixels, truncated at 2.5 sigma); ``"tent"``: the
+        Gaussian the lattice's tent is convolved with (:func:`_tent_kernel`; 0: the tent alone,
+        bilinear interpolation of the ratio).
+    eps
+        Offset of the ratio's denominator, relative to the mosaic's mean.
+    kernel
+        "gauss" or "tent" (affine ratios exact).
 
     Returns
     -------
@@ -351,7 +383,12 @@ def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, 
     else:
         val = img - own
         base = half
-    kern = _gauss(sigma)
+    if kernel == "tent":
+        kern = _tent_kernel(period, sigma)
+    elif kernel == "gauss":
+        kern = _gauss(sigma)
+    else:
+        raise MethodError(f"lmmse kernel {kernel!r}: expected 'gauss' or 'tent'")
     out = np.empty_like(stack)
 
     def job(k: int, c: int) -> None:
@@ -411,9 +448,10 @@ def run_lmmse(img: np.ndarray, lay: Layout, *, weights: dict[str, np.ndarray],
     stack = np.ascontiguousarray(_untransform(canon, p.transform))
     mode = str(params["color_stage" if lay.is_color else "mono_stage"])
     if mode != "none":
-        stack = second_stage(img, stack, lay, mode=mode,
-                             sigma=float(params["sigma" if lay.is_color else "mono_sigma"]),
-                             eps=float(params["ratio_eps"]))
+        kernel = str(params.get("kernel", "gauss"))
+        sigma = float(params["tent_sigma"] if kernel == "tent" else params["sigma" if lay.is_color else "mono_sigma"])
+        stack = second_stage(img, stack, lay, mode=mode, sigma=sigma, eps=float(params["ratio_eps"]),
+                             kernel=kernel)
     if not lay.is_color:
         stack = stack[..., 0]
     return np.ascontiguousarray(stack)

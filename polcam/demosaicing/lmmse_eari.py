@@ -36,7 +36,7 @@ from polcam.demosaicing.eari import eari
 from polcam.demosaicing.lmmse import lmmse
 from polcam.mosaic import Layout
 
-__all__ = ["BLEND_PARAMS", "REFERENCE", "blend_weight", "lmmse_eari"]
+__all__ = ["BLEND_PARAMS", "REFERENCE", "blend_weight", "lmmse_eari", "run_blend"]
 
 REFERENCE = ("a per-pixel blend of polcam's lmmse and eari, weighted by their local relative "
              "disagreement (docs/demosaic.md)")
@@ -44,7 +44,7 @@ REFERENCE = ("a per-pixel blend of polcam's lmmse and eari, weighted by their lo
 #: Parameters of the blend (docs/demosaic.md says how they were chosen).
 BLEND_PARAMS: dict[str, float] = {
     # lmmse takes over where the relative disagreement d / m^2 reaches tau
-    "tau": 0.2,
+    "tau": 0.1,
     # Gaussian of the local averages, pixels
     "sigma": 4.0,
     # dark floor of m, relative to the mosaic's mean
@@ -101,7 +101,19 @@ def blend_weight(a: np.ndarray, e: np.ndarray, *, mean: float, tau: float, sigma
 
 def lmmse_eari(img: np.ndarray, lay: Layout) -> np.ndarray:
     """Blend of :func:`~polcam.demosaicing.lmmse.lmmse` and :func:`~polcam.demosaicing.eari.eari`
-    on a float32 (H, W) mosaic.
+    on a float32 (H, W) mosaic, with :data:`BLEND_PARAMS`.
+
+    Returns
+    -------
+    numpy.ndarray
+        float32 (4, H, W) for a mono layout, (4, H, W, 3) for a colour one.
+    """
+    return run_blend(img, lay, params=BLEND_PARAMS)
+
+
+def run_blend(img: np.ndarray, lay: Layout, *, params: dict[str, float]) -> np.ndarray:
+    """:func:`lmmse_eari` with given blend parameters (the keys of :data:`BLEND_PARAMS`): what
+    the selection of :mod:`polcam.demosaicing.validation` runs.
 
     Returns
     -------
@@ -112,8 +124,8 @@ def lmmse_eari(img: np.ndarray, lay: Layout) -> np.ndarray:
     e = eari(img, lay)
     if not lay.is_color:
         a, e = a[..., None], e[..., None]
-    w = blend_weight(a, e, mean=float(np.mean(img, dtype=np.float64)), tau=BLEND_PARAMS["tau"],
-                     sigma=BLEND_PARAMS["sigma"], floor=BLEND_PARAMS["floor"])
+    w = blend_weight(a, e, mean=float(np.mean(img, dtype=np.float64)), tau=float(params["tau"]),
+                     sigma=float(params["sigma"]), floor=float(params["floor"]))
     h = img.shape[0]
 
     def job(y0: int, y1: int) -> None:

@@ -1,10 +1,12 @@
 """Training of the ``lmmse`` filter bank on scenes polcam renders itself.
 
 Run ``python -m polcam.demosaicing.training`` to remake
-``polcam/demosaicing/lmmse_weights.npz`` (a few minutes on two cores).  Nothing
-here reads third-party images: every training stack is drawn by
-:func:`training_stack` from a seeded random generator, so the weights carry no
-one else's licence.
+``polcam/demosaicing/lmmse_weights.npz`` (a few minutes on two cores).  The
+training stacks are drawn from a seeded random generator: scenes polcam renders
+itself (:func:`training_stack`), scenes of :mod:`polcam.synth.patterns`, and crops of
+public-domain / CC0 photographs that ship with scikit-image, given a simulated
+polarization by :mod:`polcam.demosaicing.photos`; so the weights carry no licence
+that forbids shipping them (docs/demosaic.md lists the photographs' licences).
 
 The scenes aim at what real colour-polarization frames contain and what the
 benchmark's synthetic scenes do not: colours that do NOT share one
@@ -22,7 +24,8 @@ then mild optical blur, clipping at the white level, and raw noise
 (signal-dependent Gaussian, sometimes 8-bit quantisation) on the mosaic only; the
 targets are the noise-free stacks.  To these the shipped weights add scenes of
 :mod:`polcam.synth.patterns` (:func:`pattern_stack`: smooth, textured, edges, sweep,
-with seeds the benchmark and the validation set do not use).
+with seeds the benchmark and the validation set do not use) and photograph crops
+(:func:`polcam.demosaicing.photos.photo_stack`, training photographs only).
 
 The fit (:func:`fit_bank`) is constrained least squares: for every output (angle,
 pixel of the 4x4 block, colour), minimise the squared error over all training
@@ -60,6 +63,7 @@ from polcam.demosaicing.lmmse import (  # noqa: I001
     to_blocks,
     weight_key,
 )
+from polcam.demosaicing.photos import TRAINING_PHOTOS, photo_stack
 from polcam.io.atomic import atomic_path
 from polcam.mosaic import Layout, parse_layout
 from polcam.synth.patterns import SCENES, make_scene
@@ -68,7 +72,9 @@ __all__ = ["fit_bank", "main", "training_stack"]
 
 #: Defaults of the command line (chosen by :mod:`polcam.demosaicing.validation`; docs/demosaic.md).
 DEFAULT_PATTERNS = 50
+DEFAULT_PHOTOS = 80
 DEFAULT_MOMENTS = 2
+DEFAULT_RIDGE = 3e-3
 
 #: Rec. 709 luminance weights: the mono training stacks are the colour ones' luminance.
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
@@ -320,18 +326,22 @@ def _sum_scenes(sums: dict[str, list], stacks: Iterator[np.ndarray], rng: np.ran
             sys.stderr.write(f"{i + 1} scenes\n")
 
 
-def gram_sums(*, scenes: int, size: int, seed: int, patterns: int = 0) -> dict[str, list]:
-    """Render ``scenes`` scenes of :func:`training_stack` (generator seeded by ``seed``) and
-    ``patterns`` scenes of :func:`pattern_stack` (their own generator, seeded by ``[seed, 1]``),
-    and sum the normal equations of the four banks of :data:`CANONICAL`:
-    ``{weight_key: [gram, cross, count]}`` (see :func:`accumulate`).  The sums of the two kinds
-    add: ``gram_sums(scenes=a, patterns=b)`` is ``gram_sums(scenes=a)`` plus
-    ``gram_sums(scenes=0, patterns=b)``."""
+def gram_sums(*, scenes: int, size: int, seed: int, patterns: int = 0, photos: int = 0) -> dict[str, list]:
+    """Render ``scenes`` scenes of :func:`training_stack` (generator seeded by ``seed``),
+    ``patterns`` scenes of :func:`pattern_stack` (their own generator, seeded by ``[seed, 1]``)
+    and ``photos`` crops of the training photographs with simulated polarization
+    (:func:`polcam.demosaicing.photos.photo_stack` on :data:`~polcam.demosaicing.photos.TRAINING_PHOTOS`,
+    generator ``[seed, 2]``), and sum the normal equations of the four banks of
+    :data:`CANONICAL`: ``{weight_key: [gram, cross, count]}`` (see :func:`accumulate`).  The sums
+    of the three kinds add: ``gram_sums(scenes=a, patterns=b)`` is ``gram_sums(scenes=a)`` plus
+    ``gram_sums(scenes=0, patterns=b)``, and likewise for ``photos``."""
     sums: dict[str, list] = {}
     rng = np.random.default_rng(seed)
     _sum_scenes(sums, (training_stack(rng, size) for _ in range(scenes)), rng)
     rng = np.random.default_rng([seed, 1])
     _sum_scenes(sums, (pattern_stack(rng, size) for _ in range(patterns)), rng)
+    rng = np.random.default_rng([seed, 2])
+    _sum_scenes(sums, (photo_stack(rng, size, photos=TRAINING_PHOTOS) for _ in range(photos)), rng)
     return sums
 
 
@@ -346,11 +356,11 @@ def fit_all(sums: dict[str, list], *, ridge: float, moments: int = 1) -> dict[st
 
 
 def train(*, scenes: int, size: int, seed: int, ridge: float, moments: int = 1,
-          patterns: int = 0) -> dict[str, np.ndarray]:
-    """Render ``scenes`` scenes (and ``patterns`` pattern scenes) and fit the four banks of
-    :data:`CANONICAL`."""
-    return fit_all(gram_sums(scenes=scenes, size=size, seed=seed, patterns=patterns), ridge=ridge,
-                   moments=moments)
+          patterns: int = 0, photos: int = 0) -> dict[str, np.ndarray]:
+    """Render ``scenes`` scenes (and ``patterns`` pattern scenes, ``photos`` photograph crops) and
+    fit the four banks of :data:`CANONICAL`."""
+    return fit_all(gram_sums(scenes=scenes, size=size, seed=seed, patterns=patterns, photos=photos),
+                   ridge=ridge, moments=moments)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -360,10 +370,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--scenes", type=int, default=150, help="number of rendered scenes (default 150)")
     ap.add_argument("--size", type=int, default=160, help="scene side in pixels (default 160)")
     ap.add_argument("--seed", type=int, default=2024, help="random seed (default 2024)")
-    ap.add_argument("--ridge", type=float, default=1e-2,
-                    help="ridge, relative to the mean Gram diagonal (default 0.01)")
+    ap.add_argument("--ridge", type=float, default=DEFAULT_RIDGE,
+                    help=f"ridge, relative to the mean Gram diagonal (default {DEFAULT_RIDGE:g})")
     ap.add_argument("--patterns", type=int, default=DEFAULT_PATTERNS,
                     help=f"pattern scenes added (default {DEFAULT_PATTERNS})")
+    ap.add_argument("--photos", type=int, default=DEFAULT_PHOTOS,
+                    help=f"crops of the training photographs added (default {DEFAULT_PHOTOS})")
     ap.add_argument("--moments", type=int, default=DEFAULT_MOMENTS, choices=(0, 1, 2),
                     help=f"order of the vanishing moments (default {DEFAULT_MOMENTS})")
     ap.add_argument("--out", type=Path, default=WEIGHTS_FILE, help=f"output .npz (default {WEIGHTS_FILE})")
@@ -372,12 +384,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         ap.error(f"--size {args.size}: expected a multiple of {BLOCK}, at least {4 * BLOCK}")
     t0 = time.perf_counter()
     weights = train(scenes=args.scenes, size=args.size, seed=args.seed, ridge=args.ridge, moments=args.moments,
-                    patterns=args.patterns)
+                    patterns=args.patterns, photos=args.photos)
     info = {"scenes": args.scenes, "size": args.size, "seed": args.seed, "ridge": args.ridge,
-            "patterns": args.patterns, "moments": args.moments,
+            "patterns": args.patterns, "photos": args.photos, "moments": args.moments,
             "command": "python -m polcam.demosaicing.training " + " ".join(argv or sys.argv[1:]),
-            "data": "polcam's own rendered scenes (polcam.demosaicing.training.training_stack); "
-                    "no third-party images"}
+            "data": "polcam's own rendered scenes (polcam.demosaicing.training.training_stack)"
+                    + (f" and crops of the public-domain / CC0 photographs {', '.join(TRAINING_PHOTOS)} of "
+                       "scikit-image with simulated polarization (polcam.demosaicing.photos)" if args.photos
+                       else "; no third-party images")}
     with atomic_path(args.out) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, info=np.array(json.dumps(info)), **weights)

@@ -12,12 +12,16 @@ training set:
   the training's raw noise model;
 * ``patterns``: the four scenes of :mod:`polcam.synth.patterns` (smooth, textured, edges,
   sweep) built from :data:`VALIDATION_SEED` (the benchmark reports them from seed 0),
-  quantised to 16 bits like the benchmark.
+  quantised to 16 bits like the benchmark;
+* ``photos``: crops of the CC0 photographs of
+  :data:`polcam.demosaicing.photos.VALIDATION_PHOTOS` (none of them is a training photograph)
+  with simulated polarization (:func:`polcam.demosaicing.photos.photo_stack`), mosaicked with
+  the training's raw noise model.
 
 The real stacks of the shared data folder (CC BY-NC or unlicensed) are never read here:
 they are evaluation data for the final report only (``polcam bench demosaic``).
 
-The score of a variant is the mean over the two groups of (S0 PSNR + DoLP PSNR), each
+The score of a variant is the mean over the groups of (S0 PSNR + DoLP PSNR), each
 group's PSNRs averaged over its scenes (:func:`score`).
 """
 
@@ -34,12 +38,14 @@ import numpy as np
 from polcam.bench.demosaic import quality
 from polcam.demosaicing._registry import demosaic, mosaic_stack
 from polcam.demosaicing.lmmse import LMMSE_PARAMS, run_lmmse
+from polcam.demosaicing.lmmse_eari import BLEND_PARAMS, run_blend
+from polcam.demosaicing.photos import VALIDATION_PHOTOS, photo_stack
 from polcam.demosaicing.training import LUMA, _noisy, fit_all, gram_sums, training_stack
 from polcam.errors import MethodError
 from polcam.mosaic import parse_layout
 from polcam.synth.patterns import SCENES, make_scene
 
-__all__ = ["VALIDATION_SEED", "evaluate", "main", "score", "select", "validation_scenes"]
+__all__ = ["VALIDATION_SEED", "evaluate", "main", "score", "select", "select_blend", "stage_params", "validation_scenes"]
 
 #: Seed of the validation scenes (training: 2024; the benchmark's synthetic scenes: 0).
 VALIDATION_SEED = 1
@@ -51,12 +57,29 @@ RIDGES = (1e-3, 3e-3, 1e-2, 3e-2, 1e-1)
 MOMENTS = (1, 2)
 #: Numbers of pattern scenes (:func:`polcam.demosaicing.training.pattern_stack`) added to the training set.
 PATTERNS = (0, 50)
+#: Numbers of photograph crops (:func:`polcam.demosaicing.photos.photo_stack`) added to the training set.
+PHOTOS = (0, 80)
+#: Blend thresholds and Gaussians tried for ``lmmse-eari`` (:func:`select_blend`).
+BLEND_TAUS = (0.03, 0.05, 0.1, 0.2, 0.4)
+BLEND_SIGMAS = (2.0, 4.0)
 #: Second stages tried, (mode, sigma).
 STAGES = (("none", 2.0), ("difference", 2.0), ("ratio", 1.0), ("ratio", 1.5), ("ratio", 2.0), ("ratio", 3.0))
 
 
+def stage_params(mode: str, sigma: float) -> dict[str, float | str]:
+    """:data:`~polcam.demosaicing.lmmse.LMMSE_PARAMS` with the second stage ``mode`` ("ratio",
+    "difference", "none", or "ratio-tent" / "difference-tent": the tent kernel) and its
+    ``sigma`` (the Gaussian; with the tent, the Gaussian the tent is convolved with), for colour
+    and mono layouts alike."""
+    base, tent = (mode[:-5], True) if mode.endswith("-tent") else (mode, False)
+    if base not in ("ratio", "difference", "none"):
+        raise MethodError(f"second stage {mode!r}: expected ratio, difference or none, optionally -tent")
+    return {**LMMSE_PARAMS, "color_stage": base, "mono_stage": base, "sigma": sigma, "mono_sigma": sigma,
+            "kernel": "tent" if tent else "gauss", "tent_sigma": sigma}
+
+
 def validation_scenes(*, color: bool, seed: int = VALIDATION_SEED, rendered: int = 16, size: int = 160,
-                      pattern_size: int = 256) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+                      pattern_size: int = 256, photos: int = 4) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
     """The validation set of one kind (colour or mono).
 
     Parameters
@@ -70,13 +93,15 @@ def validation_scenes(*, color: bool, seed: int = VALIDATION_SEED, rendered: int
         Number and side of the rendered scenes.
     pattern_size
         Side of the pattern scenes.
+    photos
+        Crops per validation photograph (side ``size``; 0: no ``photos`` group).
 
     Returns
     -------
     list of (group, scene name, truth, raw)
         ``truth`` (4, H, W, 3) or (4, H, W) float32 in [0, 1]; ``raw`` its mosaic in the
         IMX250MYR (colour) or IMX250MZR (mono) layout, float32 in [0, 1], with the training's
-        noise model (rendered) or 16-bit quantisation (patterns).
+        noise model (rendered, photos) or 16-bit quantisation (patterns).
     """
     layout = parse_layout(LAYOUTS[0] if color else LAYOUTS[1])
     rng = np.random.default_rng(seed)
@@ -91,6 +116,14 @@ def validation_scenes(*, color: bool, seed: int = VALIDATION_SEED, rendered: int
         stack = make_scene(name, height=pattern_size, width=pattern_size, seed=seed, color=color).stack
         raw = np.round(np.clip(mosaic_stack(stack, layout=layout), 0, 1) * 65535) / 65535
         out.append(("patterns", name, stack, raw.astype(np.float32)))
+    rng = np.random.default_rng([seed, 2])  # its own generator: the other groups do not depend on it
+    for photo in VALIDATION_PHOTOS:
+        for i in range(photos):
+            stack = photo_stack(rng, size, photos=(photo,), scale=(0.5, 1.0))
+            if not color:
+                stack = np.tensordot(stack, LUMA, axes=([3], [0])).astype(np.float32)
+            raw = np.clip(_noisy(rng, mosaic_stack(stack, layout=layout)), 0, 1)
+            out.append(("photos", f"{photo}-{i}", stack, raw))
     return out
 
 
@@ -112,45 +145,85 @@ def score(result: dict[str, dict[str, float]]) -> float:
 
 def select(*, scenes: int = 150, size: int = 160, seed: int = 2024, ridges: Sequence[float] = RIDGES,
            moments: Sequence[int] = MOMENTS, patterns: Sequence[int] = PATTERNS,
-           stages: Sequence[tuple[str, float]] = STAGES,
-           baselines: Sequence[str] = ("bilinear", "eari"),
-           validation: dict[str, int] | None = None) -> list[dict[str, Any]]:
-    """Fit the banks for every (pattern scenes added, moment order, ridge) (one pass of
-    rendering), run every (bank, stage) variant and the ``baselines`` on the validation set of
-    each kind.  ``validation``: keyword arguments of :func:`validation_scenes` (sizes; the
-    seed is always :data:`VALIDATION_SEED`).
+           photos: Sequence[int] = PHOTOS, stages: Sequence[tuple[str, float]] = STAGES,
+           baselines: Sequence[str] = ("bilinear", "eari", "lmmse", "lmmse-eari"),
+           validation: dict[str, int] | None = None,
+           kinds: Sequence[str] = ("color", "mono")) -> list[dict[str, Any]]:
+    """Fit the banks for every (pattern scenes added, photograph crops added, moment order, ridge)
+    (one pass of rendering), run every (bank, stage) variant and the ``baselines`` on the
+    validation set of each kind.  ``validation``: keyword arguments of :func:`validation_scenes`
+    (sizes; the seed is always :data:`VALIDATION_SEED`); ``kinds``: "color" and/or "mono".
 
     Returns
     -------
     list of dict
-        One row per (kind, variant): ``kind`` ("color"/"mono"), ``variant``, ``patterns``, ``moments``, ``ridge``,
-        ``stage``, ``sigma`` (None for baselines), ``score`` and the per-group means of :func:`evaluate`.
+        One row per (kind, variant): ``kind`` ("color"/"mono"), ``variant``, ``patterns``, ``photos``,
+        ``moments``, ``ridge``, ``stage``, ``sigma`` (None for baselines), ``score`` and the per-group
+        means of :func:`evaluate`.
     """
+    for name, counts in (("patterns", patterns), ("photos", photos)):
+        if any(n not in (0, max(counts)) for n in counts):
+            raise MethodError(f"{name} {list(counts)}: expected 0 and/or one count")
     base = gram_sums(scenes=scenes, size=size, seed=seed)
-    extra = gram_sums(scenes=0, size=size, seed=seed, patterns=max(patterns)) if max(patterns) else None
+    extra = {"patterns": gram_sums(scenes=0, size=size, seed=seed, patterns=max(patterns)) if max(patterns) else None,
+             "photos": gram_sums(scenes=0, size=size, seed=seed, photos=max(photos)) if max(photos) else None}
     banks = {}
-    for npat in patterns:
-        if npat not in (0, max(patterns)):
-            raise MethodError(f"patterns {list(patterns)}: expected 0 and/or one count")
-        sums = base if npat == 0 else {k: [a + b for a, b in zip(v, extra[k], strict=True)]
-                                       for k, v in base.items()}
-        banks.update({(npat, m, r): fit_all(sums, ridge=r, moments=m) for m in moments for r in ridges})
+    for npat, nph in itertools.product(patterns, photos):
+        sums = base
+        for n, key in ((npat, "patterns"), (nph, "photos")):
+            if n:
+                sums = {k: [a + b for a, b in zip(v, extra[key][k], strict=True)] for k, v in sums.items()}
+        banks.update({(npat, nph, m, r): fit_all(sums, ridge=r, moments=m) for m in moments for r in ridges})
     rows: list[dict[str, Any]] = []
     for color, layout in ((True, LAYOUTS[0]), (False, LAYOUTS[1])):
         kind = "color" if color else "mono"
+        if kind not in kinds:
+            continue
         lay = parse_layout(layout)
         val = validation_scenes(color=color, **{k: v for k, v in (validation or {}).items() if k != "seed"})
         for m in baselines:
             res = evaluate(lambda raw, m=m: demosaic(raw, layout=lay, method=m), val)
-            rows.append({"kind": kind, "variant": m, "patterns": None, "moments": None, "ridge": None, "stage": None,
-                         "sigma": None, "score": score(res), **res})
-        for ((npat, order, ridge), bank), (mode, sigma) in itertools.product(banks.items(), stages):
-            params = {**LMMSE_PARAMS, "color_stage": mode, "mono_stage": mode, "sigma": sigma,
-                      "mono_sigma": sigma}
+            rows.append({"kind": kind, "variant": m, "patterns": None, "photos": None, "moments": None,
+                         "ridge": None, "stage": None, "sigma": None, "score": score(res), **res})
+        for ((npat, nph, order, ridge), bank), (mode, sigma) in itertools.product(banks.items(), stages):
+            params = stage_params(mode, sigma)
             res = evaluate(lambda raw, b=bank, p=params: run_lmmse(raw, lay, weights=b, params=p), val)
-            name = f"lmmse +{npat} patterns, moments {order}, ridge {ridge:g}, {mode} {sigma:g}"
-            rows.append({"kind": kind, "variant": name, "patterns": npat, "moments": order, "ridge": ridge,
-                         "stage": mode, "sigma": sigma, "score": score(res), **res})
+            name = f"lmmse +{npat} patterns, +{nph} photos, moments {order}, ridge {ridge:g}, {mode} {sigma:g}"
+            rows.append({"kind": kind, "variant": name, "patterns": npat, "photos": nph, "moments": order,
+                         "ridge": ridge, "stage": mode, "sigma": sigma, "score": score(res), **res})
+    return rows
+
+
+def select_blend(*, taus: Sequence[float] = BLEND_TAUS, sigmas: Sequence[float] = BLEND_SIGMAS,
+                 baselines: Sequence[str] = ("bilinear", "eari", "lmmse"),
+                 validation: dict[str, int] | None = None,
+                 kinds: Sequence[str] = ("color", "mono")) -> list[dict[str, Any]]:
+    """Run ``lmmse-eari`` with the shipped ``lmmse`` weights for every (tau, sigma) of its blend
+    (:data:`polcam.demosaicing.lmmse_eari.BLEND_PARAMS`, the floor kept) and the ``baselines`` on
+    the validation set of each kind.
+
+    Returns
+    -------
+    list of dict
+        Rows like :func:`select`'s, with ``tau`` and ``sigma`` (None for baselines).
+    """
+    rows: list[dict[str, Any]] = []
+    for color, layout in ((True, LAYOUTS[0]), (False, LAYOUTS[1])):
+        kind = "color" if color else "mono"
+        if kind not in kinds:
+            continue
+        lay = parse_layout(layout)
+        val = validation_scenes(color=color, **{k: v for k, v in (validation or {}).items() if k != "seed"})
+        for m in baselines:
+            res = evaluate(lambda raw, m=m: demosaic(raw, layout=lay, method=m), val)
+            rows.append({"kind": kind, "variant": m, "tau": None, "sigma": None, "ridge": None, "score": score(res),
+                         **res})
+        for tau, sigma in itertools.product(taus, sigmas):
+            params = {**BLEND_PARAMS, "tau": tau, "sigma": sigma}
+            res = evaluate(lambda raw, p=params: run_blend(raw, lay, params=p), val)
+            # "ridge" set: format_markdown's "best" line picks among the blend's rows
+            rows.append({"kind": kind, "variant": f"lmmse-eari tau {tau:g}, sigma {sigma:g}", "tau": tau,
+                         "sigma": sigma, "ridge": 0.0, "score": score(res), **res})
     return rows
 
 
@@ -182,14 +255,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--moments", type=int, nargs="+", default=list(MOMENTS), help="moment orders tried")
     ap.add_argument("--patterns", type=int, nargs="+", default=list(PATTERNS),
                     help="pattern scenes added to the training set (0 and/or one count)")
+    ap.add_argument("--photos", type=int, nargs="+", default=list(PHOTOS),
+                    help="photograph crops added to the training set (0 and/or one count)")
+    ap.add_argument("--kinds", nargs="+", default=["color", "mono"], choices=("color", "mono"),
+                    help="kinds of layout to select for")
+    ap.add_argument("--blend", action="store_true",
+                    help="select lmmse-eari's blend (with the shipped lmmse weights) instead of the banks")
+    ap.add_argument("--taus", type=float, nargs="+", default=list(BLEND_TAUS), help="blend thresholds tried")
+    ap.add_argument("--sigmas", type=float, nargs="+", default=list(BLEND_SIGMAS), help="blend Gaussians tried")
     ap.add_argument("--stages", nargs="+", default=[f"{m}:{g:g}" for m, g in STAGES],
                     help="second stages tried, MODE:SIGMA")
     args = ap.parse_args(argv)
     if args.seed == VALIDATION_SEED:
         ap.error(f"--seed {args.seed}: the training seed must differ from the validation seed")
+    if args.blend:
+        rows = select_blend(taus=args.taus, sigmas=args.sigmas, kinds=args.kinds)
+        sys.stdout.write(format_markdown(rows) + "\n")
+        return 0
     stages = [(st.split(':')[0], float(st.split(':')[1])) for st in args.stages]
     rows = select(scenes=args.scenes, size=args.size, seed=args.seed, ridges=args.ridges, moments=args.moments,
-                  patterns=args.patterns, stages=stages)
+                  patterns=args.patterns, photos=args.photos, stages=stages, kinds=args.kinds)
     sys.stdout.write(format_markdown(rows) + "\n")
     return 0
 

@@ -11,6 +11,7 @@ import pytest
 import polcam.demosaicing.lmmse as lm
 from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.demosaicing.training import training_stack
+from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 from polcam.stokes import aolp, dolp
 from polcam.synth.patterns import stack_from_stokes, uniform_scene
@@ -160,6 +161,47 @@ def test_ratio_stage_is_exact_when_only_the_intensity_is_textured() -> None:
     # the difference stage needs the polarization difference constant: not the case here
     diff = lm.second_stage(raw, truth, MYR, mode="difference", sigma=2.0, eps=0.0)
     assert float(np.abs(diff - truth).max()) > 1e-3
+
+
+@pytest.mark.parametrize("period", [2, 4])
+@pytest.mark.parametrize("sigma", [0.0, 1.5])
+def test_tent_kernel_sums_and_centres_on_every_lattice_phase(period: int, sigma: float) -> None:
+    """On a lattice of its period, the tent kernel's taps of every phase sum to 1 / period and
+    have zero first moment (why normalised convolution with it keeps affine ratios)."""
+    k = lm._tent_kernel(period, sigma).astype(np.float64)
+    assert k.sum() == pytest.approx(1.0, abs=1e-6) and len(k) % 2 == 1
+    d = np.arange(len(k)) - len(k) // 2
+    for phase in range(period):
+        sel = (d - phase) % period == 0
+        assert k[sel].sum() == pytest.approx(1 / period, abs=1e-6)
+        assert float(k[sel] @ d[sel]) == pytest.approx(0.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("lay", [MYR, MZR, ALL_COLOR[37]], ids=lambda x: x.name)
+def test_tent_ratio_stage_is_exact_for_affine_polarization(lay: Layout) -> None:
+    """Textured S0, S1 / S0 and S2 / S0 affine in x and y (different in every colour): with the
+    true S0 as guide the tent kernel recovers every angle exactly inside the image; on the
+    colour lattices (period 4) the Gaussian kernel bends the affine ratio (on the mono lattice,
+    period 2, a Gaussian of 2 pixels is close enough to exact)."""
+    rng = np.random.default_rng(6)
+    h, w = 48, 56
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    c = 3 if lay.is_color else 1
+    s0 = rng.uniform(0.3, 0.9, size=(h, w, c))
+    f = 0.1 + (2e-3 * x - 3e-3 * y)[..., None] * np.arange(1, c + 1)  # S1 / S0
+    g = -0.2 + (4e-3 * y + 1e-3 * x)[..., None] * np.ones(c)  # S2 / S0
+    truth = 0.5 * s0 * np.stack([1 + f, 1 + g, 1 - f, 1 - g])
+    truth = truth.astype(np.float32) if lay.is_color else truth[..., 0].astype(np.float32)
+    raw = mosaic_stack(truth, layout=lay)
+    guide = truth if lay.is_color else truth[..., None]
+    tent = lm.second_stage(raw, guide, lay, mode="ratio", sigma=1.5, eps=0.0, kernel="tent")
+    gauss = lm.second_stage(raw, guide, lay, mode="ratio", sigma=2.0, eps=0.0, kernel="gauss")
+    t = guide[:, B:-B, B:-B]
+    assert float(np.abs(tent[:, B:-B, B:-B] - t).max()) < 1e-5
+    if lay.is_color:
+        assert float(np.abs(gauss[:, B:-B, B:-B] - t).max()) > 1e-4
+    with pytest.raises(MethodError, match="kernel"):
+        lm.second_stage(raw, guide, lay, mode="ratio", sigma=1.0, eps=0.0, kernel="box")
 
 
 @pytest.mark.parametrize("lay", ALL_MONO[::3] + ALL_COLOR[::7], ids=lambda x: x.name)

@@ -102,11 +102,17 @@ def test_pattern_scenes_and_additive_sums() -> None:
         np.testing.assert_allclose(g, first[key][0] + second[key][0])
         np.testing.assert_allclose(x, first[key][1] + second[key][1])
         assert n == first[key][2] + second[key][2]
+    # photograph crops add the same way
+    with_photos = gram_sums(scenes=1, size=32, seed=9, photos=1)
+    photos = gram_sums(scenes=0, size=32, seed=9, photos=1)
+    for key, (g, x, n) in with_photos.items():
+        np.testing.assert_allclose(g, first[key][0] + photos[key][0])
+        assert n == first[key][2] + photos[key][2]
 
 
 def test_command_line_writes_weights(tmp_path: Path) -> None:
     out = tmp_path / "w.npz"
-    assert main(["--scenes", "2", "--size", "32", "--out", str(out)]) == 0
+    assert main(["--scenes", "2", "--size", "32", "--photos", "0", "--out", str(out)]) == 0
     with np.load(out) as data:
         assert set(data.files) == {"info", "mono_diag", "mono_beside", "color_diag", "color_beside"}
         assert data["color_diag"].shape == (144, 192) and data["mono_diag"].shape == (144, 64)
@@ -123,4 +129,5 @@ def test_shipped_weights_say_how_they_were_made() -> None:
         info = json.loads(str(data["info"]))
     assert info["scenes"] >= 100 and "polcam.demosaicing.training" in info["command"]
     # the settings the validation set chose (docs/demosaic.md)
-    assert info["moments"] == 2 and info["patterns"] == 50 and info["ridge"] == 0.01 and info["seed"] == 2024
+    assert info["moments"] == 2 and info["patterns"] == 50 and info["ridge"] == 0.003 and info["seed"] == 2024
+    assert info["photos"] == 80 and "CC0" in info["data"]

@@ -15,12 +15,13 @@ from polcam.demosaicing.validation import (
     main,
     score,
     select,
+    stage_params,
     validation_scenes,
 )
 from polcam.errors import MethodError
 from polcam.mosaic import parse_layout
 
-SMALL = {"rendered": 2, "size": 48, "pattern_size": 48}
+SMALL = {"rendered": 2, "size": 48, "pattern_size": 48, "photos": 1}
 
 
 @pytest.mark.parametrize("color", [True, False])
@@ -29,7 +30,8 @@ def test_validation_scenes_are_seeded_and_grouped(color: bool) -> None:
     b = validation_scenes(color=color, **SMALL)
     assert [(g, n) for g, n, _, _ in a] == [("rendered", "rendered-0"), ("rendered", "rendered-1"),
                                             ("patterns", "smooth"), ("patterns", "textured"),
-                                            ("patterns", "edges"), ("patterns", "sweep")]
+                                            ("patterns", "edges"), ("patterns", "sweep"),
+                                            ("photos", "coffee-0"), ("photos", "chelsea-0")]
     lay = parse_layout("imx250myr" if color else "imx250mzr")
     for (_, _, ta, ra), (_, _, tb, rb) in zip(a, b, strict=True):
         np.testing.assert_array_equal(ta, tb)
@@ -60,21 +62,46 @@ def test_evaluate_ranks_a_better_method_higher() -> None:
     val = validation_scenes(color=False, **SMALL)
     good = evaluate(lambda raw: demosaic(raw, layout=lay, method="bilinear"), val)
     bad = evaluate(lambda raw: np.stack([raw] * 4), val)
-    assert set(good) == {"rendered", "patterns"}
+    assert set(good) == {"rendered", "patterns", "photos"}
     assert score(good) > score(bad) + 10
 
 
 def test_select_runs_every_variant() -> None:
-    rows = select(scenes=2, size=32, seed=5, ridges=(0.01, 0.1), moments=(1,), patterns=(0, 1),
-                  stages=(("ratio", 2.0), ("none", 2.0)), baselines=("bilinear",), validation=SMALL)
+    rows = select(scenes=2, size=32, seed=5, ridges=(0.01, 0.1), moments=(1,), patterns=(0, 1), photos=(0, 1),
+                  stages=(("ratio", 2.0), ("none", 2.0), ("ratio-tent", 1.0)), baselines=("bilinear",),
+                  validation=SMALL)
     for kind in ("color", "mono"):
         sel = [r for r in rows if r["kind"] == kind]
-        assert len(sel) == 1 + 2 * 2 * 2
+        assert len(sel) == 1 + 2 * 2 * 2 * 3
         assert all(np.isfinite(r["score"]) for r in sel)
     text = format_markdown(rows)
     assert "best color: lmmse" in text and "best mono: lmmse" in text
     with pytest.raises(MethodError, match="patterns"):
         select(scenes=1, size=32, seed=5, patterns=(0, 1, 2), validation=SMALL)
+    with pytest.raises(MethodError, match="photos"):
+        select(scenes=1, size=32, seed=5, photos=(0, 1, 2), validation=SMALL)
+
+
+def test_stage_params_name_the_kernel() -> None:
+    assert stage_params("ratio", 2.0)["kernel"] == "gauss"
+    tent = stage_params("ratio-tent", 1.5)
+    assert tent["kernel"] == "tent" and tent["tent_sigma"] == 1.5 and tent["color_stage"] == "ratio"
+    with pytest.raises(MethodError, match="second stage"):
+        stage_params("median", 1.0)
+
+
+def test_photos_group_uses_validation_photographs_only() -> None:
+    """The photos group is cut from the validation photographs, never the training ones, and
+    the other groups do not depend on it."""
+    from polcam.demosaicing.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS
+
+    val = validation_scenes(color=True, **SMALL)
+    names = [n.rsplit("-", 1)[0] for g, n, _, _ in val if g == "photos"]
+    assert set(names) == set(VALIDATION_PHOTOS) and not set(names) & set(TRAINING_PHOTOS)
+    without = validation_scenes(color=True, **{**SMALL, "photos": 0})
+    assert len(without) == len(val) - len(VALIDATION_PHOTOS)
+    for (_, _, ta, _), (_, _, tb, _) in zip(without, val, strict=False):
+        np.testing.assert_array_equal(ta, tb)
 
 
 def test_command_line_refuses_the_validation_seed_for_training() -> None:
