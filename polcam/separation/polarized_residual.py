@@ -61,8 +61,16 @@ DEFAULTS: dict[str, Any] = {
     "polarized_threshold": 0.02,  # polarized specular / intensity that marks a highlight neighbourhood
     "max_ratio": 4.0,            # unpolarized specular residual <= max_ratio x the polarized specular nearby
     "noise": "shrink",           # the amplitude's noise bias: "off", "rice", "shrink" (garrote) or "thresh"
+    "declip": True,              # rebuild clipped samples from the other angles (S0 identity, shared AoLP)
     "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"
 }
+
+
+#: Where polarized highlights measure k (unpolarized / polarized specular light) below this, the colour
+#: prior is weighted down in proportion: step 2 has already removed almost all of their specular light.
+_PRIOR_K = 0.5
+#: Noise deviations at which the non-negative garrote of the polarized amplitude (``noise="shrink"``) sets in.
+_KSIG = 2.5
 
 
 def _check(opts: dict[str, Any]) -> None:
@@ -73,6 +81,9 @@ def _check(opts: dict[str, Any]) -> None:
     mr = opts["max_ratio"]
     if isinstance(mr, bool) or not isinstance(mr, (int, float, np.floating)) or not 0 <= float(mr) < 1e3:
         raise MethodError(f"polarized-residual: max_ratio={mr!r}: expected a number in [0, 1000)")
+    for k in ("declip", "diffuse_polarization"):
+        if not isinstance(opts[k], (bool, np.bool_)):
+            raise MethodError(f"polarized-residual: {k}={opts[k]!r}: expected True or False")
     if opts["noise"] not in ("off", "rice", "shrink", "thresh"):
         raise MethodError(f"polarized-residual: noise={opts['noise']!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
     if opts["residual_model"] not in ("shen13", "hue"):
@@ -110,7 +121,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     **options
         See :data:`DEFAULTS`: ``illuminant`` (RGB or None), ``efficiency``
         ((3,) per-colour polarizer efficiency in (0, 1] or None),
-        ``diffuse_polarization`` (keep a perpendicular polarized diffuse part),
+        ``diffuse_polarization`` (keep a perpendicular polarized diffuse part), ``noise`` (how the
+        polarized amplitude's noise bias is removed), ``declip`` (rebuild clipped samples),
         ``context``, ``hue_bins``, ``min_saturation``, ``polarized_threshold``.
 
     Returns
@@ -132,6 +144,9 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     if s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
         raise MethodError(f"polarized-residual: stack of shape {s.shape}: expected (4, H, W, 3) or (4, H, W)")
     h, w = s.shape[1:3]
+    measured = s.mean(axis=0)
+    if opts["declip"]:
+        s = _declipped(s)
     ic = s.mean(axis=0)
     q = 0.5 * (s[0] - s[2])
     u = 0.5 * (s[1] - s[3])
@@ -305,13 +320,19 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
             rb = cv2.blur(resid, (kw, kw))
             cb = rb / np.maximum(rb.sum(axis=-1, keepdims=True), 1e-6) - g / g.sum()
             sat_w = np.linalg.norm(cb, axis=-1)
-            wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)[..., None]
+            wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)
+            if ratio_source == "coloured highlights":
+                # near polarized highlights whose measured k is small, their specular light was almost
+                # all polarized and step 2 removed it: the colour prior is weighted down there
+                near = cv2.blur(gate.astype(np.float32), (k_ctx, k_ctx))
+                wgt = wgt * (1.0 - near * (1.0 - np.clip(k_loc / _PRIOR_K, 0.0, 1.0)))
+            wgt = wgt[..., None]
             diffuse = wgt * np.minimum(sf, diffuse) + (1.0 - wgt) * diffuse
     # saturated pixels (a channel at the white level in all four angles): that channel's polarization
     # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
     # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
     # specular colour allows
-    sat_px = ic.max(axis=-1) >= _SATURATED                   # a channel clipped at all four angles
+    sat_px = measured.max(axis=-1) >= _SATURATED                   # a channel clipped at all four angles
     if sat_px.any():
         # only clipped highlights: a clipped region at least 30 % of whose unclipped border (a 2-pixel
         # ring) shows coherent polarized specular light (step 3); an overexposed diffuse surface has
@@ -335,7 +356,75 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
             "polarized_floor": floor}
     if est is not None:
         info["polarized_colour"] = [float(x) for x in est.polarized]
+    # never more than was measured (declipping raises Ic where samples were clipped): lowered by the
+    # least multiple of the one specular colour that brings every channel under the measurement
+    over = ((diffuse - measured) / g).max(axis=-1)
+    diffuse = np.clip(diffuse - np.maximum(over, 0.0)[..., None] * g, 0.0, measured)
     return diffuse.astype(np.float32), info
+
+
+def _declipped(stack: np.ndarray) -> np.ndarray:
+    """The stack with clipped samples rebuilt from the unclipped ones where the physics allows.
+
+    ``stack`` is (4, H, W, 3) float32 (angles 0, 45, 90, 135).  A sample at or above the white
+    level (``_SATURATED``) holds less than the light that fell on it.  Per pixel and channel:
+
+    * one clipped sample: every ideal polarizer stack has ``I0 + I90 = I45 + I135`` (both S0),
+      so the clipped one is the sum of its two neighbours' angles less the opposite one;
+    * two clipped samples: the two others give ``Ic`` and the amplitude ``A`` of
+      ``I(t) = Ic + A cos(2t - 2 phi)`` once the AoLP ``phi`` is known, taken from the pixel's
+      channels that have no clipped sample (a specular highlight's polarization is common to
+      the channels); skipped where no channel is unclipped or the 2 x 2 system is ill-conditioned
+      (|det| < 0.2).
+
+    A rebuilt value replaces the sample only when it is at least the clipped value (otherwise
+    the measurement contradicts the model and is kept).  Pixels with a channel clipped at three
+    or four angles are left as they are (the clipped highlights' fill handles them).
+    """
+    s = stack.copy()
+    clipped = stack >= _SATURATED                                  # (4, H, W, 3)
+    n = clipped.sum(axis=0)
+    if not n.any():
+        return s
+    # pixels with a channel clipped at three or four angles are left whole: that channel is not
+    # measured, and the clipped highlights' fill (from the neighbours) handles them
+    n = np.where((n >= 3).any(axis=-1, keepdims=True), 0, n)
+    one = n == 1
+    for k in range(4):
+        m = one & clipped[k]
+        if m.any():
+            est = stack[(k + 1) % 4] + stack[(k + 3) % 4] - stack[(k + 2) % 4]
+            s[k] = np.where(m & (est >= stack[k]), est, s[k])
+    two = n == 2
+    if two.any():
+        free = ~clipped.any(axis=0)                                # (H, W, 3) channels with no clipped sample
+        qq = (0.5 * (stack[0] - stack[2]) * free).sum(axis=-1)
+        uu = (0.5 * (stack[1] - stack[3]) * free).sum(axis=-1)
+        # where no channel of the pixel is free, the AoLP of the free channels around it (7 x 7)
+        qn = cv2.boxFilter(qq.astype(np.float32), -1, (7, 7), normalize=False)
+        un = cv2.boxFilter(uu.astype(np.float32), -1, (7, 7), normalize=False)
+        own = free.any(axis=-1)
+        qq = np.where(own, qq, qn)
+        uu = np.where(own, uu, un)
+        phi = 0.5 * np.arctan2(uu, qq)                             # (H, W)
+        have = np.hypot(qq, uu) > 0
+        angles = np.deg2rad(np.array([0.0, 45.0, 90.0, 135.0]))
+        cosk = np.cos(2 * angles[:, None, None] - 2 * phi[None])   # (4, H, W)
+        for a in range(4):
+            for b in range(a + 1, 4):
+                # the pair (a, b) unclipped, the other two clipped
+                m = two & ~clipped[a] & ~clipped[b] & have[..., None]
+                if not m.any():
+                    continue
+                det = (cosk[b] - cosk[a])[..., None]
+                ok = m & (np.abs(det) >= 0.2)
+                dsafe = np.where(ok, det, 1.0)
+                amp = (stack[b] - stack[a]) / dsafe
+                icx = stack[a] - amp * cosk[a][..., None]
+                for k in set(range(4)) - {a, b}:
+                    est = icx + amp * cosk[k][..., None]
+                    s[k] = np.where(ok & (est >= stack[k]), est, s[k])
+    return s
 
 
 def _stokes_noise(stack: np.ndarray, ic: np.ndarray) -> np.ndarray:
@@ -395,7 +484,6 @@ def _binned_spread(level: np.ndarray, absres: np.ndarray, valid: np.ndarray, bin
     return np.interp(level, centres, np.maximum.accumulate(np.asarray(sig))).astype(np.float32)
 
 
-_KSIG = 2.5   # noise multiple of the non-negative garrote (debias)
 
 
 def _debias(isv: np.ndarray, sig: np.ndarray, how: str) -> np.ndarray:

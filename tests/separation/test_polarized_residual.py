@@ -175,7 +175,51 @@ def test_noise_is_not_removed_as_polarized_light():
     assert abs(bias(ours)) < 0.0015
 
 
-@pytest.mark.parametrize("opt", [{"context": 0}, {"hue_bins": 2}, {"max_ratio": -1}, {"noise": "median"},
+def test_declipping_rebuilds_samples_exactly():
+    from polcam.separation.polarized_residual import _declipped
+
+    # one pixel, three channels: a sinusoid per channel (common AoLP 35 deg), then clipped at 1
+    t = np.deg2rad([0.0, 45.0, 90.0, 135.0])
+    phi = np.deg2rad(35.0)
+    ic = np.array([0.95, 0.78, 0.5])
+    amp = np.array([0.3, 0.3, 0.2])
+    true = (ic[None] + amp[None] * np.cos(2 * t[:, None] - 2 * phi)).reshape(4, 1, 1, 3).astype(np.float32)
+    clipped = np.minimum(true, 1.0)
+    assert (true >= 1.0).sum(axis=0).ravel().tolist() == [2, 1, 0]   # R two samples over, G one, B none
+    assert np.all((clipped >= 1.0) | (clipped < 0.98))              # no sample just under the white level
+    got = _declipped(clipped)
+    np.testing.assert_allclose(got, true, atol=1e-5)                 # G by the S0 identity, R by B's AoLP
+    # a measurement that contradicts the model (the rebuilt value below the clipped one) is kept
+    odd = clipped.copy()
+    odd[:, 0, 0, 0] = [1.0, 0.5, 0.5, 0.5]
+    np.testing.assert_array_equal(_declipped(odd)[:, 0, 0, 0], odd[:, 0, 0, 0])
+    # with the AoLP at 20 deg the two unclipped samples of R (90 and 135 deg) sit nearly symmetric
+    # about the sinusoid's minimum: the 2 x 2 system is ill-conditioned (|det| 0.12) and R is left as is
+    true20 = (ic[None] + amp[None] * np.cos(2 * t[:, None] - 2 * np.deg2rad(20.0))).reshape(4, 1, 1, 3)
+    c20 = np.minimum(true20, 1.0).astype(np.float32)
+    assert (c20[:, 0, 0, 0] >= 1.0).sum() == 2
+    np.testing.assert_array_equal(_declipped(c20)[:, 0, 0, 0], c20[:, 0, 0, 0])
+
+
+def test_clipped_strongly_polarized_highlight():
+    # a bright, fully polarized white highlight on a coloured patch clips some angles of the red and
+    # green channels: declipping recovers the diffuse there, beyond what imin (or no declipping) does
+    d = _scene()
+    h, w = d.shape[:2]
+    spec = 0.9 * _bump(h, w, 16, 12, 2.5)
+    st = np.minimum(_stack(d, spec, (1, 1, 1), rho_s=1.0, phi_s=0.3), 1.0)
+    part = (st >= 1.0).any(axis=(0, 3)) & ~(st >= 1.0).all(axis=0).any(axis=-1)
+    assert part.sum() >= 8
+    err = lambda x: float(np.abs(x - d)[part].mean())  # noqa: E731
+    ours = polcam.separate(st, method="polarized-residual").diffuse
+    off = polcam.separate(st, method="polarized-residual", declip=False).diffuse
+    imin = polcam.separate(st, method="imin").diffuse
+    assert err(ours) < 0.5 * err(off)
+    assert err(ours) < 0.5 * err(imin)
+    assert np.all(ours <= st.mean(axis=0) + 1e-6)
+
+
+@pytest.mark.parametrize("opt", [{"context": 0}, {"hue_bins": 2}, {"max_ratio": -1}, {"noise": "median"}, {"declip": "yes"},
                                  {"illuminant": (1, 0, 1)}, {"polarized_threshold": 2}])
 def test_bad_options(opt):
     st = np.zeros((4, 8, 8, 3))
