@@ -524,6 +524,9 @@ def _mono(stack: np.ndarray, opts: dict[str, Any]) -> tuple[np.ndarray, dict[str
     """
     s = np.asarray(stack, dtype=np.float32)
     h, w = s.shape[1:3]
+    measured = s.mean(axis=0)
+    if opts["declip"]:
+        s = _declipped(s[..., None])[..., 0]
     ic = s.mean(axis=0)
     q = 0.5 * (s[0] - s[2])
     u = 0.5 * (s[1] - s[3])
@@ -540,7 +543,7 @@ def _mono(stack: np.ndarray, opts: dict[str, Any]) -> tuple[np.ndarray, dict[str
     gate = np.clip((dop - t) / t, 0.0, 1.0)
     a_pix = (np.minimum(a_eff, isv) * gate).astype(np.float32)
     ratio = _gradient_ratio(imin, a_pix, float(opts["max_ratio"]))
-    diffuse = np.clip(imin - ratio * a_pix, 0.0, imin)
+    diffuse = np.clip(imin - ratio * a_pix, 0.0, np.minimum(imin, measured))
     return diffuse.astype(np.float32), {"residual_ratio": ratio, "polarized_floor": floor}
 
 
