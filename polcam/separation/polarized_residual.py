@@ -374,8 +374,8 @@ def _declipped(stack: np.ndarray) -> np.ndarray:
     * two clipped samples: the two others give ``Ic`` and the amplitude ``A`` of
       ``I(t) = Ic + A cos(2t - 2 phi)`` once the AoLP ``phi`` is known, taken from the pixel's
       channels that have no clipped sample (a specular highlight's polarization is common to
-      the channels); skipped where no channel is unclipped or the 2 x 2 system is ill-conditioned
-      (|det| < 0.2).
+      the channels, or from the nearest unclipped pixels within 15 pixels); skipped where none
+      is found or the 2 x 2 system is ill-conditioned (|det| < 0.2).
 
     A rebuilt value replaces the sample only when it is at least the clipped value (otherwise
     the measurement contradicts the model and is kept).  Pixels with a channel clipped at three
@@ -400,12 +400,18 @@ def _declipped(stack: np.ndarray) -> np.ndarray:
         free = ~clipped.any(axis=0)                                # (H, W, 3) channels with no clipped sample
         qq = (0.5 * (stack[0] - stack[2]) * free).sum(axis=-1)
         uu = (0.5 * (stack[1] - stack[3]) * free).sum(axis=-1)
-        # where no channel of the pixel is free, the AoLP of the free channels around it (7 x 7)
-        qn = cv2.boxFilter(qq.astype(np.float32), -1, (7, 7), normalize=False)
-        un = cv2.boxFilter(uu.astype(np.float32), -1, (7, 7), normalize=False)
-        own = free.any(axis=-1)
-        qq = np.where(own, qq, qn)
-        uu = np.where(own, uu, un)
+        # where no channel of the pixel is free, the AoLP of the free channels around it: the nearest of
+        # the 7 x 7, 15 x 15 and 31 x 31 neighbourhoods that has any (a highlight's AoLP varies smoothly)
+        have = free.any(axis=-1)
+        for side in (7, 15, 31):
+            if have.all():
+                break
+            qn = cv2.boxFilter(qq.astype(np.float32), -1, (side, side), normalize=False)
+            un = cv2.boxFilter(uu.astype(np.float32), -1, (side, side), normalize=False)
+            found = ~have & (np.hypot(qn, un) > 0)
+            qq = np.where(found, qn, qq)
+            uu = np.where(found, un, uu)
+            have = have | found
         phi = 0.5 * np.arctan2(uu, qq)                             # (H, W)
         have = np.hypot(qq, uu) > 0
         angles = np.deg2rad(np.array([0.0, 45.0, 90.0, 135.0]))

@@ -219,6 +219,21 @@ def test_clipped_strongly_polarized_highlight():
     assert np.all(ours <= st.mean(axis=0) + 1e-6)
 
 
+def test_mono_clipped_strongly_polarized_highlight():
+    # the same on a mono stack: a fully polarized highlight that clips one or two angles (AoLP 34 deg;
+    # near 22.5 deg the two unclipped samples would sit symmetric about the minimum, unsolvable)
+    d = _scene().mean(axis=-1)
+    h, w = d.shape
+    spec = 0.8 * _bump(h, w, 36, 32, 3)
+    st = np.minimum(synthesize(spec, spec, np.full((h, w), 0.6)) + d, 1.0)
+    part = (st >= 1.0).any(axis=0) & ((st >= 1.0).sum(axis=0) <= 2)
+    assert part.sum() >= 8
+    err = lambda x: float(np.abs(x - d)[part].mean())  # noqa: E731
+    ours = polcam.separate(st, method="polarized-residual").diffuse
+    off = polcam.separate(st, method="polarized-residual", declip=False).diffuse
+    assert err(ours) < 0.5 * err(off)
+
+
 @pytest.mark.parametrize("opt", [{"context": 0}, {"hue_bins": 2}, {"max_ratio": -1}, {"noise": "median"}, {"declip": "yes"},
                                  {"illuminant": (1, 0, 1)}, {"polarized_threshold": 2}])
 def test_bad_options(opt):
