@@ -87,7 +87,7 @@ def _parts(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nd
         raise MethodError(f"illuminant: stack of shape {s.shape}: expected (4, H, W, 3)")
     ic = s.mean(axis=0)
     isv = 0.5 * np.hypot(s[0] - s[2], s[1] - s[3])
-    unsat = s.max(axis=(0, 3)) < _SATURATED
+    unsat = s.max(axis=0).max(axis=-1) < _SATURATED
     return s, ic, isv, unsat
 
 
@@ -243,7 +243,7 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
     p = xp.pad_hw(vs, 1, 0.0)                                   # zeros outside
     box = sum(p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
     terms = xp.einsum("hwcj,hwj->hwc", v, box - vs)             # (H, W, 3)
-    ok = xp.amax(x, axis=(0, 3)) < 0.98
+    ok = xp.amax(xp.amax(x, axis=0), axis=-1) < 0.98
     if own_colour is not None:
         terms, ok = _own_colour_weighted(xp.to_numpy(terms), xp.to_numpy(x), xp.to_numpy(ok), float(own_colour))
         xp = namespace(terms)

@@ -382,29 +382,32 @@ def _declipped(stack: np.ndarray) -> np.ndarray:
     or four angles are left as they are (the clipped highlights' fill handles them).
     """
     s = stack.copy()
-    clipped = stack >= _SATURATED                                  # (4, H, W, 3)
-    n = clipped.sum(axis=0)
+    clipped = stack >= _SATURATED                                  # (4, H, W, C)
+    n = clipped.sum(axis=0, dtype=np.int8)
     if not n.any():
         return s
     # pixels with a channel clipped at three or four angles are left whole: that channel is not
     # measured, and the clipped highlights' fill (from the neighbours) handles them
-    n = np.where((n >= 3).any(axis=-1, keepdims=True), 0, n)
-    one = n == 1
-    for k in range(4):
-        m = one & clipped[k]
-        if m.any():
-            est = stack[(k + 1) % 4] + stack[(k + 3) % 4] - stack[(k + 2) % 4]
-            s[k] = np.where(m & (est >= stack[k]), est, s[k])
-    two = n == 2
-    if two.any():
-        free = ~clipped.any(axis=0)                                # (H, W, 3) channels with no clipped sample
+    n[(n >= 3).any(axis=-1)] = 0
+    # one clipped sample (sparse: only those pixels and channels are touched)
+    yy, xx, cc = np.nonzero(n == 1)
+    if yy.size:
+        v = stack[:, yy, xx, cc]                                   # (4, N)
+        k = np.argmax(clipped[:, yy, xx, cc], axis=0)
+        cols = np.arange(yy.size)
+        est = v[(k + 1) % 4, cols] + v[(k + 3) % 4, cols] - v[(k + 2) % 4, cols]
+        keep = est >= v[k, cols]
+        s[k[keep], yy[keep], xx[keep], cc[keep]] = est[keep]
+    yy, xx, cc = np.nonzero(n == 2)
+    if yy.size:
+        free = ~clipped.any(axis=0)                                # (H, W, C) channels with no clipped sample
         qq = (0.5 * (stack[0] - stack[2]) * free).sum(axis=-1)
         uu = (0.5 * (stack[1] - stack[3]) * free).sum(axis=-1)
         # where no channel of the pixel is free, the AoLP of the free channels around it: the nearest of
         # the 7 x 7, 15 x 15 and 31 x 31 neighbourhoods that has any (a highlight's AoLP varies smoothly)
         have = free.any(axis=-1)
         for side in (7, 15, 31):
-            if have.all():
+            if have[yy, xx].all():
                 break
             qn = cv2.boxFilter(qq.astype(np.float32), -1, (side, side), normalize=False)
             un = cv2.boxFilter(uu.astype(np.float32), -1, (side, side), normalize=False)
@@ -412,24 +415,24 @@ def _declipped(stack: np.ndarray) -> np.ndarray:
             qq = np.where(found, qn, qq)
             uu = np.where(found, un, uu)
             have = have | found
-        phi = 0.5 * np.arctan2(uu, qq)                             # (H, W)
-        have = np.hypot(qq, uu) > 0
+        phi = 0.5 * np.arctan2(uu[yy, xx], qq[yy, xx])             # (N,)
+        ok = np.hypot(qq[yy, xx], uu[yy, xx]) > 0
         angles = np.deg2rad(np.array([0.0, 45.0, 90.0, 135.0]))
-        cosk = np.cos(2 * angles[:, None, None] - 2 * phi[None])   # (4, H, W)
-        for a in range(4):
-            for b in range(a + 1, 4):
-                # the pair (a, b) unclipped, the other two clipped
-                m = two & ~clipped[a] & ~clipped[b] & have[..., None]
-                if not m.any():
-                    continue
-                det = (cosk[b] - cosk[a])[..., None]
-                ok = m & (np.abs(det) >= 0.2)
-                dsafe = np.where(ok, det, 1.0)
-                amp = (stack[b] - stack[a]) / dsafe
-                icx = stack[a] - amp * cosk[a][..., None]
-                for k in set(range(4)) - {a, b}:
-                    est = icx + amp * cosk[k][..., None]
-                    s[k] = np.where(ok & (est >= stack[k]), est, s[k])
+        cosk = np.cos(2 * angles[:, None] - 2 * phi[None])          # (4, N)
+        v = stack[:, yy, xx, cc]                                   # (4, N)
+        cl = clipped[:, yy, xx, cc]
+        order = np.argsort(cl, axis=0, kind="stable")              # unclipped first
+        a, b = order[0], order[1]
+        cols = np.arange(yy.size)
+        det = cosk[b, cols] - cosk[a, cols]
+        ok &= np.abs(det) >= 0.2
+        amp = (v[b, cols] - v[a, cols]) / np.where(ok, det, 1.0)
+        icx = v[a, cols] - amp * cosk[a, cols]
+        for j in (2, 3):
+            k = order[j]
+            est = icx + amp * cosk[k, cols]
+            keep = ok & (est >= v[k, cols])
+            s[k[keep], yy[keep], xx[keep], cc[keep]] = est[keep]
     return s
 
 
@@ -477,6 +480,8 @@ def _binned_spread(level: np.ndarray, absres: np.ndarray, valid: np.ndarray, bin
     res = absres[valid]
     if lev.size == 0:
         return np.zeros(level.shape, np.float32)
+    step = max(1, lev.size // 250_000)                 # a regular subsample is plenty for eight medians
+    lev, res = lev[::step], res[::step]
     edges = np.quantile(lev, np.linspace(0, 1, bins + 1))
     idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, bins - 1)
     centres, sig = [], []
