@@ -321,6 +321,10 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
             cb = rb / np.maximum(rb.sum(axis=-1, keepdims=True), 1e-6) - g / g.sum()
             sat_w = np.linalg.norm(cb, axis=-1)
             wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)
+            # and only on coloured materials: the most saturated residual of the pixel's hue nearby
+            # (step 4's sat_d, the material's body colour) ramps the prior in from min_saturation to
+            # twice it, so a weakly coloured material is decided by polarization, not by colour
+            wgt = wgt * np.clip((sat_d - ms) / ms, 0.0, 1.0)
             if ratio_source == "coloured highlights":
                 # near polarized highlights whose measured k is small, their specular light was almost
                 # all polarized and step 2 removed it: the colour prior is weighted down there
