@@ -1,0 +1,154 @@
+"""The shared-ratio second stage of ``lmmse`` on colour layouts (private; docs/demosaic.md).
+
+The ratio stage of :func:`polcam.demosaicing.lmmse.second_stage` interpolates the
+polarization ratio ``q = I / (S0 / 2)`` of each (angle, colour) lattice on its own: on a
+colour sensor one sample in 4 x 4 pixels (two for green), so the ratio's detail is
+interpolated at a quarter of the resolution.  Real colours share most of their
+polarization (the angle nearly always, the degree up to a slowly varying factor), so the
+samples of one angle in *all* colours (one pixel in 2 x 2) carry the detail four times
+more densely.  Using them without mixing the colours' own ratios takes three steps, per
+angle k (``T_p`` the normalised convolution of a lattice of period p):
+
+1. **Colour offsets**: each colour's ratio, smoothed on its own lattice (a Gaussian of
+   ``offset_sigma`` pixels, then the lattice's bilinear tent), ``S_c``; their mean over
+   the colours ``m = sum_c w_c S_c`` (``w_c`` each colour's share of the samples);
+   ``o_c = S_c - m``.
+2. **Shared ratio**: every sample of angle k, of whatever colour c, less its colour's
+   offset, ``q - o_c``, interpolated on the period-2 lattice of angle k (its bilinear tent
+   convolved with a Gaussian of ``common_sigma`` pixels): ``U``.
+3. **Colour residual**: ``q - U`` on colour c's own samples, smoothed and interpolated
+   like the offsets (Gaussian of ``residual_sigma``): ``R_c``.
+
+The estimate is ``q_c = U + R_c``, multiplied back by ``S0_c / 2 + e``; own samples are
+kept.  If every colour's ratio is an affine function of x and y (constant: uniform
+polarization, different in each colour), the offsets are exact, ``q - o_c`` is the
+colours' mean ratio ``m`` at every sample, ``U = m``, and ``R_c = q_c - m``: exact.
+Step 1 needs the offsets only at the samples of angle k, so it runs on that angle's
+samples alone (a quarter of the pixels: a Bayer mosaic of ratios).  The
+smoothing on a lattice (a Gaussian of ``sigma / period`` samples on the lattice's own
+grid, then the bilinear tent) keeps affine functions and costs a sixteenth of a
+full-resolution filter of that width.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from polcam.demosaicing._lattice import gauss_kernel, normconv, run_jobs, sublattices, tent_kernel
+from polcam.errors import MethodError
+from polcam.mosaic import Layout
+
+__all__ = ["lattice_smooth", "shared_ratio_stage"]
+
+
+def lattice_smooth(val: np.ndarray, offsets: list[tuple[int, int]], period: int, sigma: float) -> np.ndarray:
+    """Smooth one lattice's samples on their own grid and interpolate them to every pixel.
+
+    Each rectangular sub-lattice ``val[oy::period, ox::period]`` is filtered by a Gaussian
+    of ``sigma / period`` samples (mirrored about its outermost samples; none if ``sigma``
+    is 0), then the lattice is interpolated by normalised convolution with its bilinear
+    tent (:func:`~polcam.demosaicing._lattice.tent_kernel` of radius ``period``).
+
+    Parameters
+    ----------
+    val
+        (H, W) float32; only the lattice's pixels are read.
+    offsets
+        The lattice's offsets within one period.
+    period
+        Its period in pixels.
+    sigma
+        Gaussian in pixels (>= 0).
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W) float32.  An affine function of x and y comes back exactly away from the
+        borders; a constant everywhere.
+    """
+    if sigma > 0:
+        g = gauss_kernel(sigma / period)
+        tmp = np.zeros_like(val)
+        for oy, ox in offsets:
+            sub = np.ascontiguousarray(val[oy::period, ox::period])
+            tmp[oy::period, ox::period] = cv2.sepFilter2D(sub, cv2.CV_32F, g, g, borderType=cv2.BORDER_REFLECT_101)
+        val = tmp
+    return normconv(val, offsets, period, tent_kernel(period, 0.0))
+
+
+def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, common_sigma: float,
+                       offset_sigma: float, residual_sigma: float, eps: float) -> np.ndarray:
+    """Re-estimate every angle of a colour layout from the polarization ratios of all colours.
+
+    Parameters
+    ----------
+    img
+        (H, W) float32 mosaic of a colour layout.
+    stack
+        (4, H, W, 3) first-stage estimate (its S0 per colour is the guide).
+    lay
+        The mosaic's layout (colour).
+    common_sigma
+        Gaussian (pixels) convolved with the period-2 tent of the shared ratio (step 2).
+    offset_sigma, residual_sigma
+        Gaussians (pixels) of the colour offsets (step 1) and the colour residual (step 3).
+    eps
+        Offset of the ratio's denominator, relative to the mosaic's mean.
+
+    Returns
+    -------
+    numpy.ndarray
+        (4, H, W, 3) float32; every pixel's own sample kept.
+
+    Raises
+    ------
+    polcam.errors.MethodError
+        For a mono layout.
+    """
+    if not lay.is_color:
+        raise MethodError(f"shared-ratio stage: layout {lay.name} is mono, expected a colour layout")
+    h, w = img.shape
+    channels = stack.shape[-1]
+    period = lay.period
+    half = stack.sum(axis=0) * np.float32(0.25)  # S0 / 2 per channel, (H, W, C)
+    ci = lay.channel_index(h, w)
+    own = np.take_along_axis(half, ci[..., None], axis=2)[..., 0]
+    e = np.float32(eps * max(float(np.mean(img, dtype=np.float64)), 1e-6))
+    # the true ratio I / (S0 / 2) = 1 + DoLP cos(...) lies in [0, 2]; the clip keeps a poor
+    # first-stage S0 (near 0 or negative on aliased detail) from blowing it up
+    val = np.clip(img / (np.maximum(own, 0) + e), 0, 2)
+    base = np.maximum(half, 0) + e
+    ckern = tent_kernel(2, common_sigma)
+    out = np.empty_like(stack)
+
+    def job(k: int) -> None:
+        lattices = [sublattices(lay, k, c) for c in range(channels)]
+        parity = {(y0 % 2, x0 % 2) for lat in lattices for y0, x0 in lat}
+        if len(parity) != 1:  # pragma: no cover - every colour layout repeats its 2x2 polarizer cell
+            raise MethodError(f"shared-ratio stage: angle {k} of {lay.name} is not on one period-2 lattice")
+        (py, px), = parity
+        # step 1 on the samples of angle k (a Bayer mosaic of ratios, period 2 in colour)
+        sub = np.ascontiguousarray(val[py::2, px::2])
+        sub_lat = [sorted({((y0 - py) // 2 % 2, (x0 - px) // 2 % 2) for y0, x0 in lat}) for lat in lattices]
+        share = np.array([len(lat) for lat in lattices], np.float32)
+        share /= share.sum()
+        smooth = np.stack([lattice_smooth(sub, sub_lat[c], 2, offset_sigma / 2) for c in range(channels)])
+        mean = np.tensordot(share, smooth, axes=1)
+        csub = ci[py::2, px::2]
+        own_smooth = np.take_along_axis(smooth, csub[None], axis=0)[0]
+        # step 2: the samples less their colour's offset, on the period-2 lattice
+        u = np.zeros_like(val)
+        u[py::2, px::2] = sub - own_smooth + mean
+        shared = normconv(u, [(py, px)], 2, ckern)
+        # step 3: each colour's residual from the shared ratio, on its own lattice
+        resid = val - shared
+        for c, lat in enumerate(lattices):
+            est = out[k, ..., c]
+            np.add(shared, lattice_smooth(resid, lat, period, residual_sigma), out=est)
+            est *= base[..., c]
+            for y0, x0 in lat:  # own samples kept
+                est[y0::period, x0::period] = img[y0::period, x0::period]
+
+    run_jobs([lambda k=k: job(k) for k in range(4)])
+    return out
