@@ -35,20 +35,21 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from polcam.demosaicing._lattice import gauss_kernel, normconv, run_jobs, sublattices, tent_kernel
+from polcam.demosaicing._lattice import gauss_kernel, run_jobs, sublattices, tent_kernel
 from polcam.errors import MethodError
 from polcam.mosaic import Layout
 
-__all__ = ["lattice_smooth", "shared_ratio_stage"]
+__all__ = ["lattice_filter", "lattice_smooth", "shared_ratio_stage"]
 
 
 def lattice_smooth(val: np.ndarray, offsets: list[tuple[int, int]], period: int, sigma: float) -> np.ndarray:
-    """Smooth one lattice's samples on their own grid and interpolate them to every pixel.
+    """Smooth one lattice's samples on their own grid and interpolate them bilinearly to every pixel.
 
-    Each rectangular sub-lattice ``val[oy::period, ox::period]`` is filtered by a Gaussian
-    of ``sigma / period`` samples (mirrored about its outermost samples; none if ``sigma``
-    is 0), then the lattice is interpolated by normalised convolution with its bilinear
-    tent (:func:`~polcam.demosaicing._lattice.tent_kernel` of radius ``period``).
+    Each rectangular sub-lattice ``val[oy::period, ox::period]`` is extended beyond its
+    outermost samples point-symmetrically (``v(-i) = 2 v(0) - v(i)``, which keeps affine
+    functions affine), filtered by a Gaussian of ``sigma / period`` samples (none if ``sigma``
+    is 0) and interpolated bilinearly (linear extrapolation past the outermost samples); a
+    lattice of several sub-lattices (the green quincunx) gets the mean of theirs.
 
     Parameters
     ----------
@@ -64,17 +65,62 @@ def lattice_smooth(val: np.ndarray, offsets: list[tuple[int, int]], period: int,
     Returns
     -------
     numpy.ndarray
-        (H, W) float32.  An affine function of x and y comes back exactly away from the
-        borders; a constant everywhere.
+        (H, W) float32.  An affine function of x and y comes back exactly at every pixel; with
+        ``sigma`` 0 the samples of a rectangular lattice come back too.
     """
-    if sigma > 0:
-        g = gauss_kernel(sigma / period)
-        tmp = np.zeros_like(val)
-        for oy, ox in offsets:
-            sub = np.ascontiguousarray(val[oy::period, ox::period])
-            tmp[oy::period, ox::period] = cv2.sepFilter2D(sub, cv2.CV_32F, g, g, borderType=cv2.BORDER_REFLECT_101)
-        val = tmp
-    return normconv(val, offsets, period, tent_kernel(period, 0.0))
+    h, w = val.shape
+    g = gauss_kernel(sigma / period) if sigma > 0 else np.ones(1, np.float32)
+    r = len(g) // 2 + 1
+    tent = np.maximum(0.0, 1.0 - np.abs(np.arange(1 - period, period)) / period).astype(np.float32)
+    out = np.zeros((h, w), np.float32)
+    for oy, ox in offsets:
+        sub = np.pad(val[oy::period, ox::period], r, mode="reflect", reflect_type="odd")
+        sub = cv2.sepFilter2D(sub, cv2.CV_32F, g, g, borderType=cv2.BORDER_ISOLATED)
+        sub = sub[r - 1:sub.shape[0] + 1 - r, r - 1:sub.shape[1] + 1 - r]  # one extra sample on each side
+        # the samples (one outside the image on each side) at their pixels, from (oy - period, ox - period)
+        canvas = np.zeros(((sub.shape[0] - 1) * period + 1, (sub.shape[1] - 1) * period + 1), np.float32)
+        canvas[::period, ::period] = sub
+        full = cv2.sepFilter2D(canvas, cv2.CV_32F, tent, tent, borderType=cv2.BORDER_CONSTANT)
+        out += full[period - oy:period - oy + h, period - ox:period - ox + w]
+    if len(offsets) > 1:
+        out *= np.float32(1 / len(offsets))
+    return out
+
+
+def lattice_filter(val: np.ndarray, offset: tuple[int, int], period: int, sigma: float) -> np.ndarray:
+    """Interpolate a rectangular lattice with its bilinear tent convolved with a Gaussian of
+    ``sigma`` pixels (:func:`~polcam.demosaicing._lattice.tent_kernel`), at full resolution.
+
+    Beyond its outermost samples the lattice is extended point-symmetrically, so the kernel's
+    taps of every phase sum to 1 everywhere and affine functions come back exactly at every
+    pixel (what normalised convolution with mirrored borders does not give near the edges).
+
+    Parameters
+    ----------
+    val
+        (H, W) float32; only the lattice's pixels are read.
+    offset
+        The lattice's offset (y, x) within one period.
+    period
+        Its period in pixels.
+    sigma
+        Gaussian in pixels (>= 0).
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W) float32.
+    """
+    h, w = val.shape
+    oy, ox = offset
+    kern = tent_kernel(period, sigma) * np.float32(period)  # the taps of each phase sum to 1
+    r = len(kern) // 2 // period + 1  # samples needed beyond the outermost ones
+    sub = np.pad(val[oy::period, ox::period], r, mode="reflect", reflect_type="odd")
+    canvas = np.zeros(((sub.shape[0] - 1) * period + 1, (sub.shape[1] - 1) * period + 1), np.float32)
+    canvas[::period, ::period] = sub
+    full = cv2.sepFilter2D(canvas, cv2.CV_32F, kern, kern, borderType=cv2.BORDER_CONSTANT)
+    y0, x0 = r * period - oy, r * period - ox  # canvas position of pixel (0, 0)
+    return np.ascontiguousarray(full[y0:y0 + h, x0:x0 + w])
 
 
 def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, common_sigma: float,
@@ -119,7 +165,6 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
     # first-stage S0 (near 0 or negative on aliased detail) from blowing it up
     val = np.clip(img / (np.maximum(own, 0) + e), 0, 2)
     base = np.maximum(half, 0) + e
-    ckern = tent_kernel(2, common_sigma)
     out = np.empty_like(stack)
 
     def job(k: int) -> None:
@@ -140,7 +185,7 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
         # step 2: the samples less their colour's offset, on the period-2 lattice
         u = np.zeros_like(val)
         u[py::2, px::2] = sub - own_smooth + mean
-        shared = normconv(u, [(py, px)], 2, ckern)
+        shared = lattice_filter(u, (py, px), 2, common_sigma)
         # step 3: each colour's residual from the shared ratio, on its own lattice
         resid = val - shared
         for c, lat in enumerate(lattices):

@@ -47,7 +47,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from polcam.demosaicing._lattice import bilinear_cells, normconv, run_jobs, sublattices
@@ -293,7 +292,7 @@ def _job(blocks: np.ndarray, weights: np.ndarray, out: np.ndarray, r0: int, r1: 
 #: Parameters of the second stage (docs/demosaic.md says how they were chosen).
 LMMSE_PARAMS: dict[str, float | str] = {
     # second stage per kind of layout: "ratio" (polarization ratio), "difference" or "none"
-    "color_stage": "ratio",
+    "color_stage": "shared-ratio",
     "mono_stage": "none",
     # Gaussian of the normalised convolution of the ratios / differences, pixels (colour, mono)
     "sigma": 2.0,
@@ -308,7 +307,7 @@ LMMSE_PARAMS: dict[str, float | str] = {
     # the "shared-ratio" stage (colour; polcam.demosaicing._shared_ratio): Gaussians in pixels of the
     # all-colour ratio (with the period-2 tent), the colours' offsets and the colours' residual
     "common_sigma": 1.2,
-    "offset_sigma": 24.0,
+    "offset_sigma": 12.0,
     "residual_sigma": 4.0,
 }
 
