@@ -32,6 +32,8 @@ full-resolution filter of that width.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import cv2
 import numpy as np
 
@@ -74,8 +76,8 @@ def lattice_smooth(val: np.ndarray, offsets: list[tuple[int, int]], period: int,
     tent = np.maximum(0.0, 1.0 - np.abs(np.arange(1 - period, period)) / period).astype(np.float32)
     out = np.zeros((h, w), np.float32)
     for oy, ox in offsets:
-        sub = np.pad(val[oy::period, ox::period], r, mode="reflect", reflect_type="odd")
-        sub = cv2.sepFilter2D(sub, cv2.CV_32F, g, g, borderType=cv2.BORDER_ISOLATED)
+        sub = cv2.sepFilter2D(_odd_pad(val[oy::period, ox::period], r), cv2.CV_32F, g, g,
+                              borderType=cv2.BORDER_ISOLATED)
         sub = sub[r - 1:sub.shape[0] + 1 - r, r - 1:sub.shape[1] + 1 - r]  # one extra sample on each side
         # the samples (one outside the image on each side) at their pixels, from (oy - period, ox - period)
         canvas = np.zeros(((sub.shape[0] - 1) * period + 1, (sub.shape[1] - 1) * period + 1), np.float32)
@@ -85,6 +87,49 @@ def lattice_smooth(val: np.ndarray, offsets: list[tuple[int, int]], period: int,
     if len(offsets) > 1:
         out *= np.float32(1 / len(offsets))
     return out
+
+
+def _odd_pad(a: np.ndarray, r: int) -> np.ndarray:
+    """``a`` (h, w) extended by ``r`` samples on every side point-symmetrically about its
+    outermost samples (``v(-i) = 2 v(0) - v(i)``): affine functions stay affine."""
+    return np.pad(a, r, mode="reflect", reflect_type="odd")
+
+
+def _phases(samples: np.ndarray, offset: tuple[int, int], period: int, sigma: float, h: int, w: int
+            ) -> Iterator[tuple[int, int, np.ndarray]]:
+    """The pixels of :func:`lattice_filter`, one phase of the lattice at a time.
+
+    Yields ``(y0, x0, values)``: ``values`` are the filtered image at ``[y0::period,
+    x0::period]`` (y0, x0 < period), computed on the sample grid with the kernel's taps of
+    that phase (polyphase filtering: no full-resolution canvas of zeros)."""
+    kern = (tent_kernel(period, sigma) * np.float32(period)).astype(np.float64)
+    c = len(kern) // 2
+    reach = c // period + 1  # samples on either side that can have a tap
+    pad = reach + 1
+    grid = _odd_pad(samples, pad)
+    oy, ox = offset
+
+    def taps(phi: int) -> np.ndarray:
+        # value at y = o + period i + phi is sum_d t[d] s[i + d], t[d] = kern[c + phi - period d]
+        t = np.zeros(2 * reach + 1)
+        for d in range(-reach, reach + 1):
+            j = c + phi - period * d
+            if 0 <= j < len(kern):
+                t[d + reach] = kern[j]
+        return t.astype(np.float32)
+
+    ty = {phi: taps(phi) for phi in range(period)}
+    for py in range(period):
+        y0 = (oy + py) % period
+        iy = (y0 - oy - py) // period + pad  # grid row of the first output row
+        ny = len(range(y0, h, period))
+        for px in range(period):
+            x0 = (ox + px) % period
+            ix = (x0 - ox - px) // period + pad
+            nx = len(range(x0, w, period))
+            part = grid[iy - reach:iy + ny + reach, ix - reach:ix + nx + reach]
+            res = cv2.sepFilter2D(part, cv2.CV_32F, ty[px], ty[py], borderType=cv2.BORDER_ISOLATED)
+            yield y0, x0, res[reach:reach + ny, reach:reach + nx]
 
 
 def lattice_filter(val: np.ndarray, offset: tuple[int, int], period: int, sigma: float) -> np.ndarray:
@@ -113,14 +158,21 @@ def lattice_filter(val: np.ndarray, offset: tuple[int, int], period: int, sigma:
     """
     h, w = val.shape
     oy, ox = offset
-    kern = tent_kernel(period, sigma) * np.float32(period)  # the taps of each phase sum to 1
-    r = len(kern) // 2 // period + 1  # samples needed beyond the outermost ones
-    sub = np.pad(val[oy::period, ox::period], r, mode="reflect", reflect_type="odd")
-    canvas = np.zeros(((sub.shape[0] - 1) * period + 1, (sub.shape[1] - 1) * period + 1), np.float32)
-    canvas[::period, ::period] = sub
-    full = cv2.sepFilter2D(canvas, cv2.CV_32F, kern, kern, borderType=cv2.BORDER_CONSTANT)
-    y0, x0 = r * period - oy, r * period - ox  # canvas position of pixel (0, 0)
-    return np.ascontiguousarray(full[y0:y0 + h, x0:x0 + w])
+    out = np.empty((h, w), np.float32)
+    for y0, x0, values in _phases(np.ascontiguousarray(val[oy::period, ox::period]), offset, period, sigma, h, w):
+        out[y0::period, x0::period] = values
+    return out
+
+
+def _filter_at_samples(samples: np.ndarray, period: int, sigma: float) -> np.ndarray:
+    """:func:`lattice_filter` evaluated at the lattice's own samples only: the kernel's taps at
+    multiples of ``period`` applied on the sample grid, (h', w') float32."""
+    kern = tent_kernel(period, sigma) * np.float32(period)
+    c = len(kern) // 2
+    taps = np.ascontiguousarray(kern[c % period::period])
+    r = len(taps) // 2
+    out = cv2.sepFilter2D(_odd_pad(samples, r), cv2.CV_32F, taps, taps, borderType=cv2.BORDER_ISOLATED)
+    return out[r:out.shape[0] - r, r:out.shape[1] - r]
 
 
 def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, common_sigma: float,
@@ -159,12 +211,16 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
     period = lay.period
     half = stack.sum(axis=0) * np.float32(0.25)  # S0 / 2 per channel, (H, W, C)
     ci = lay.channel_index(h, w)
-    own = np.take_along_axis(half, ci[..., None], axis=2)[..., 0]
+    own = np.empty((h, w), np.float32)  # S0 / 2 of each pixel's own colour
+    for c in range(channels):
+        for k in range(4):
+            for y0, x0 in sublattices(lay, k, c):
+                own[y0::period, x0::period] = half[y0::period, x0::period, c]
     e = np.float32(eps * max(float(np.mean(img, dtype=np.float64)), 1e-6))
     # the true ratio I / (S0 / 2) = 1 + DoLP cos(...) lies in [0, 2]; the clip keeps a poor
     # first-stage S0 (near 0 or negative on aliased detail) from blowing it up
     val = np.clip(img / (np.maximum(own, 0) + e), 0, 2)
-    base = np.maximum(half, 0) + e
+    base = np.ascontiguousarray(np.moveaxis(np.maximum(half, 0) + e, -1, 0))  # (C, H, W)
     out = np.empty_like(stack)
 
     def job(k: int) -> None:
@@ -173,25 +229,25 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
         if len(parity) != 1:  # pragma: no cover - every colour layout repeats its 2x2 polarizer cell
             raise MethodError(f"shared-ratio stage: angle {k} of {lay.name} is not on one period-2 lattice")
         (py, px), = parity
-        # step 1 on the samples of angle k (a Bayer mosaic of ratios, period 2 in colour)
+        # all colour work on the samples of angle k: a Bayer mosaic of ratios, colour period 2
         sub = np.ascontiguousarray(val[py::2, px::2])
+        csub = ci[py::2, px::2]
         sub_lat = [sorted({((y0 - py) // 2 % 2, (x0 - px) // 2 % 2) for y0, x0 in lat}) for lat in lattices]
         share = np.array([len(lat) for lat in lattices], np.float32)
         share /= share.sum()
+        # step 1: the colours' offsets from their mean
         smooth = np.stack([lattice_smooth(sub, sub_lat[c], 2, offset_sigma / 2) for c in range(channels)])
         mean = np.tensordot(share, smooth, axes=1)
-        csub = ci[py::2, px::2]
-        own_smooth = np.take_along_axis(smooth, csub[None], axis=0)[0]
-        # step 2: the samples less their colour's offset, on the period-2 lattice
-        u = np.zeros_like(val)
-        u[py::2, px::2] = sub - own_smooth + mean
-        shared = lattice_filter(u, (py, px), 2, common_sigma)
-        # step 3: each colour's residual from the shared ratio, on its own lattice
-        resid = val - shared
+        u = sub - np.take_along_axis(smooth, csub[None], axis=0)[0] + mean
+        # step 2 at the samples, step 3 there too; then one full-resolution filter per colour:
+        # q_c = T(u + R_c) = U + T(R_c), T the shared ratio's filter (R_c smooth: T(R_c) ~ R_c)
+        resid = sub - _filter_at_samples(u, 2, common_sigma)
         for c, lat in enumerate(lattices):
+            r_c = lattice_smooth(resid, sub_lat[c], 2, residual_sigma / 2)
+            r_c += u
             est = out[k, ..., c]
-            np.add(shared, lattice_smooth(resid, lat, period, residual_sigma), out=est)
-            est *= base[..., c]
+            for y0, x0, q in _phases(r_c, (py, px), 2, common_sigma, h, w):
+                np.multiply(q, base[c, y0::2, x0::2], out=est[y0::2, x0::2])
             for y0, x0 in lat:  # own samples kept
                 est[y0::period, x0::period] = img[y0::period, x0::period]
 

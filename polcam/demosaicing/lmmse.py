@@ -308,7 +308,7 @@ LMMSE_PARAMS: dict[str, float | str] = {
     # all-colour ratio (with the period-2 tent), the colours' offsets and the colours' residual
     "common_sigma": 1.2,
     "offset_sigma": 12.0,
-    "residual_sigma": 4.0,
+    "residual_sigma": 3.0,
 }
 
 
