@@ -67,7 +67,7 @@ BLEND_SIGMAS = (2.0, 4.0)
 #: the colours' offsets, the colours' residual.
 SHARED_COMMONS = (0.8, 1.2, 1.6)
 SHARED_OFFSETS = (12.0, 24.0)
-SHARED_RESIDUALS = (2.0, 3.0, 4.0, 6.0)
+SHARED_RESIDUALS = (3.0, 4.0, 6.0)
 #: Second stages tried, (mode, sigma).
 STAGES = (("none", 2.0), ("difference", 2.0), ("ratio", 1.0), ("ratio", 1.5), ("ratio", 2.0), ("ratio", 3.0))
 
