@@ -24,13 +24,17 @@ As implemented here (docs/demosaic.md has the details):
   weights; the first and second moments of those weights about the output pixel
   vanish too, so images whose every angle and colour is quadratic in x and y come back
   exactly.
-* A second stage (:func:`second_stage`) re-estimates every angle from its own
-  samples with the bank's S0 as guide: the polarization ratio ``I / (S0 / 2)``
-  (colour) is interpolated by normalised convolution (the lattice's bilinear tent
-  smoothed by a Gaussian: affine ratios come back exactly) and multiplied back.
-  The ratio is ``1 + DoLP cos(2 (theta - AoLP))``, free of the intensity's texture,
-  so this is where the DoLP and AoLP gain comes from (after the Stokes-domain and
-  polarization-difference ideas of Qiu et al. 2019 and Li et al. 2019).
+* A second stage re-estimates every angle from its own samples with the bank's S0
+  as guide, through the polarization ratio ``I / (S0 / 2)``, which is
+  ``1 + DoLP cos(2 (theta - AoLP))``, free of the intensity's texture: this is where
+  the DoLP and AoLP gain comes from (after the Stokes-domain and
+  polarization-difference ideas of Qiu et al. 2019 and Li et al. 2019).  Colour
+  layouts run the shared ratio (:func:`polcam.demosaicing._shared_ratio.shared_ratio_stage`:
+  the ratios of all colours of an angle, each colour's smooth offset removed,
+  interpolated on the angle's period-2 lattice, plus each colour's smooth residual);
+  :func:`second_stage` is the per-colour ratio stage (each (angle, colour) lattice on
+  its own, the lattice's bilinear tent smoothed by a Gaussian), selectable by
+  :data:`LMMSE_PARAMS`.
 * Weights exist for two cell geometries: orthogonal angles on the diagonals of the
   2x2 cell (IMX250: ``90 45 / 135 0``) and side by side.  Any other layout (other
   arrangements, Bayer phases, ROI offsets, mirrored read-outs) is brought to one of
@@ -291,7 +295,8 @@ def _job(blocks: np.ndarray, weights: np.ndarray, out: np.ndarray, r0: int, r1: 
 
 #: Parameters of the second stage (docs/demosaic.md says how they were chosen).
 LMMSE_PARAMS: dict[str, float | str] = {
-    # second stage per kind of layout: "ratio" (polarization ratio), "difference" or "none"
+    # second stage per kind of layout: "shared-ratio" (colour only), "ratio" (polarization ratio of
+    # each lattice), "difference" or "none"
     "color_stage": "shared-ratio",
     "mono_stage": "none",
     # Gaussian of the normalised convolution of the ratios / differences, pixels (colour, mono)

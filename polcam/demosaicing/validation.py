@@ -23,6 +23,10 @@ they are evaluation data for the final report only (``polcam bench demosaic``).
 
 The score of a variant is the mean over the groups of (S0 PSNR + DoLP PSNR), each
 group's PSNRs averaged over its scenes (:func:`score`).
+
+``--blend`` selects ``lmmse-eari``'s blend (:func:`select_blend`) and ``--shared`` the
+Gaussians of the colour shared-ratio stage (:func:`select_shared`), both with the shipped
+weights.
 """
 
 from __future__ import annotations
