@@ -220,7 +220,7 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
     # the true ratio I / (S0 / 2) = 1 + DoLP cos(...) lies in [0, 2]; the clip keeps a poor
     # first-stage S0 (near 0 or negative on aliased detail) from blowing it up
     val = np.clip(img / (np.maximum(own, 0) + e), 0, 2)
-    base = np.ascontiguousarray(np.moveaxis(np.maximum(half, 0) + e, -1, 0))  # (C, H, W)
+    base = np.maximum(half, 0) + e  # (H, W, C)
     out = np.empty_like(stack)
 
     def job(k: int) -> None:
@@ -231,25 +231,32 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
         (py, px), = parity
         # all colour work on the samples of angle k: a Bayer mosaic of ratios, colour period 2
         sub = np.ascontiguousarray(val[py::2, px::2])
-        csub = ci[py::2, px::2]
         sub_lat = [sorted({((y0 - py) // 2 % 2, (x0 - px) // 2 % 2) for y0, x0 in lat}) for lat in lattices]
         share = np.array([len(lat) for lat in lattices], np.float32)
         share /= share.sum()
         # step 1: the colours' offsets from their mean
         smooth = np.stack([lattice_smooth(sub, sub_lat[c], 2, offset_sigma / 2) for c in range(channels)])
         mean = np.tensordot(share, smooth, axes=1)
-        u = sub - np.take_along_axis(smooth, csub[None], axis=0)[0] + mean
+        u = sub + mean
+        for c, lat in enumerate(sub_lat):
+            for y0, x0 in lat:
+                u[y0::2, x0::2] -= smooth[c, y0::2, x0::2]
         # step 2 at the samples, step 3 there too; then one full-resolution filter per colour:
         # q_c = T(u + R_c) = U + T(R_c), T the shared ratio's filter (R_c smooth: T(R_c) ~ R_c)
         resid = sub - _filter_at_samples(u, 2, common_sigma)
-        for c, lat in enumerate(lattices):
+        # the ratios of every colour at every pixel, assembled phase by phase in pixel order
+        hh, ww = -(-h // 2), -(-w // 2)
+        q = np.empty((hh, 2, ww, 2, channels), np.float32)
+        for c in range(channels):
             r_c = lattice_smooth(resid, sub_lat[c], 2, residual_sigma / 2)
             r_c += u
-            est = out[k, ..., c]
-            for y0, x0, q in _phases(r_c, (py, px), 2, common_sigma, h, w):
-                np.multiply(q, base[c, y0::2, x0::2], out=est[y0::2, x0::2])
+            for y0, x0, values in _phases(r_c, (py, px), 2, common_sigma, h, w):
+                q[:values.shape[0], y0, :values.shape[1], x0, c] = values
+        est = out[k]
+        np.multiply(q.reshape(2 * hh, 2 * ww, channels)[:h, :w], base, out=est)
+        for c, lat in enumerate(lattices):
             for y0, x0 in lat:  # own samples kept
-                est[y0::period, x0::period] = img[y0::period, x0::period]
+                est[y0::period, x0::period, c] = img[y0::period, x0::period]
 
     run_jobs([lambda k=k: job(k) for k in range(4)])
     return out
