@@ -72,6 +72,17 @@ def test_uniform_polarization_different_in_every_colour_comes_back(lay: Layout) 
     np.testing.assert_allclose(est, truth[:, B:-B, B:-B], atol=1e-5)
 
 
+@pytest.mark.parametrize(("h", "w"), [(42, 46), (8, 8), (10, 12)])
+def test_uniform_polarization_per_colour_is_exact_up_to_the_borders(h: int, w: int) -> None:
+    """The lattice filters extend point-symmetrically, so the exactness holds at every pixel,
+    borders included, also for sizes that are not multiples of the 4-pixel period."""
+    s0 = np.broadcast_to(np.array([0.3, 0.6, 0.9]), (h, w, 3))
+    dolp_, aolp_ = np.array([0.4, 0.25, 0.1]), np.array([0.4, 0.5, 0.6])
+    truth = _stack(s0, dolp_ * np.cos(2 * aolp_), dolp_ * np.sin(2 * aolp_))
+    est = demosaic(mosaic_stack(truth, layout=MYR), layout=MYR, method="lmmse")
+    np.testing.assert_allclose(est, truth, atol=1e-5)
+
+
 @pytest.mark.parametrize("lay", COLOR_LAYOUTS, ids=lambda x: x.name)
 def test_affine_ratios_of_every_colour_come_back_under_a_textured_s0(lay: Layout) -> None:
     """Textured S0, and s1, s2 affine in x and y with a different plane in every colour: with the
