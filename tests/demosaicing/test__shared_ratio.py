@@ -11,7 +11,7 @@ import pytest
 
 import polcam.demosaicing.lmmse as lm
 from polcam.demosaicing import demosaic, mosaic_stack
-from polcam.demosaicing._shared_ratio import lattice_smooth, shared_ratio_stage
+from polcam.demosaicing._shared_ratio import _filter_at_samples, lattice_filter, lattice_smooth, shared_ratio_stage
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 from polcam.stokes import aolp, dolp
@@ -53,6 +53,28 @@ def test_lattice_smoothing_keeps_affine_and_constant_images(period: int, offsets
             np.testing.assert_allclose(sm[oy::period, ox::period], noise[oy::period, ox::period], atol=1e-5)
         elif sigma > 0:
             assert float(np.std(sm[B:-B, B:-B])) < 0.5
+
+
+@pytest.mark.parametrize("offset", [(0, 0), (1, 0), (0, 1), (1, 1)])
+@pytest.mark.parametrize("sigma", [0.0, 1.2, 3.0])
+def test_lattice_filter_is_exact_on_affine_images_and_matches_its_value_at_the_samples(
+        offset: tuple[int, int], sigma: float) -> None:
+    """The shared ratio's filter T: affine images exact at every pixel (borders included); with
+    sigma 0 it interpolates the samples; the stage's shortcut for T at the samples
+    (``_filter_at_samples``) equals T there."""
+    h, w = 30, 38
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    affine = np.float32(0.5) - np.float32(4e-3) * x + np.float32(7e-3) * y
+    np.testing.assert_allclose(lattice_filter(affine, offset, 2, sigma), affine, atol=2e-6)
+    noise = np.random.default_rng(4).normal(0, 1, (h, w)).astype(np.float32)
+    full = lattice_filter(noise, offset, 2, sigma)
+    oy, ox = offset
+    at = _filter_at_samples(np.ascontiguousarray(noise[oy::2, ox::2]), 2, sigma)
+    np.testing.assert_allclose(at, full[oy::2, ox::2], atol=1e-5)
+    if sigma == 0:
+        np.testing.assert_allclose(full[oy::2, ox::2], noise[oy::2, ox::2], atol=1e-6)
+    else:  # a smoothing filter: the samples do not come back
+        assert float(np.abs(full[oy::2, ox::2] - noise[oy::2, ox::2]).max()) > 0.1
 
 
 @pytest.mark.parametrize("lay", COLOR_LAYOUTS, ids=lambda x: x.name)
