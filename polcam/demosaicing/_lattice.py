@@ -154,3 +154,65 @@ def run_jobs(jobs: list[Callable[[], None]]) -> None:
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for fut in [pool.submit(j) for j in jobs]:
             fut.result()
+
+
+def gauss_kernel(sigma: float) -> np.ndarray:
+    """Gaussian kernel of ``sigma`` pixels truncated at 2.5 sigma (at least 3 taps), float32, sum 1."""
+    r = max(1, int(np.ceil(2.5 * sigma)))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    return (k / k.sum()).astype(np.float32)
+
+
+def tent_kernel(period: int, sigma: float) -> np.ndarray:
+    """The tent ``tri(d / period)`` convolved with a Gaussian of ``sigma`` pixels (none if
+    ``sigma`` is 0), float32, sum 1.
+
+    On a lattice of that period the tent's copies sum to a constant and their first moments
+    vanish at every pixel (its spectrum has double zeros at the lattice's non-zero
+    frequencies); convolving with any kernel keeps both, so normalised convolution with this
+    kernel reproduces affine functions exactly."""
+    d = np.arange(-(period - 1), period, dtype=np.float64)
+    k = np.maximum(0.0, 1.0 - np.abs(d) / period)
+    if sigma > 0:
+        k = np.convolve(k, gauss_kernel(sigma).astype(np.float64))
+    return (k / k.sum()).astype(np.float32)
+
+
+def _indicator_blur(n: int, offset: int, period: int, kernel: np.ndarray) -> np.ndarray:
+    """``kernel`` applied to the 0/1 indicator of ``offset::period`` along a line of n (BORDER_REFLECT)."""
+    ind = np.zeros((1, n), np.float32)
+    ind[0, offset::period] = 1.0
+    return cv2.sepFilter2D(ind, cv2.CV_32F, kernel, np.ones(1, np.float32), borderType=cv2.BORDER_REFLECT)[0]
+
+
+def normconv(val: np.ndarray, offsets: list[tuple[int, int]], period: int, kernel: np.ndarray) -> np.ndarray:
+    """Normalised convolution of the samples of one lattice.
+
+    Parameters
+    ----------
+    val
+        (H, W) float32; only its values at the lattice's pixels are read.
+    offsets
+        The lattice: offsets (y, x) within one ``period`` (``offset::period`` in both axes).
+    period
+        Period of the lattice in pixels.
+    kernel
+        Odd-length 1-D kernel, applied separably (mirrored borders, OpenCV ``BORDER_REFLECT``).
+
+    Returns
+    -------
+    numpy.ndarray
+        (H, W) float32: ``K * (samples) / K * (mask)``.
+    """
+    h, w = val.shape
+    sparse = np.zeros((h, w), np.float32)
+    for oy, ox in offsets:
+        sparse[oy::period, ox::period] = val[oy::period, ox::period]
+    q = cv2.sepFilter2D(sparse, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_REFLECT)
+    blurs = [(_indicator_blur(h, oy, period, kernel), _indicator_blur(w, ox, period, kernel)) for oy, ox in offsets]
+    if len(blurs) == 1:  # a rectangular lattice: the blurred mask is an outer product
+        q *= (1 / np.maximum(blurs[0][0], np.float32(1e-12)))[:, None]
+        q *= (1 / np.maximum(blurs[0][1], np.float32(1e-12)))[None, :]
+    else:
+        q /= np.maximum(sum(np.outer(a, b) for a, b in blurs), np.float32(1e-12))
+    return q

@@ -24,13 +24,17 @@ As implemented here (docs/demosaic.md has the details):
   weights; the first and second moments of those weights about the output pixel
   vanish too, so images whose every angle and colour is quadratic in x and y come back
   exactly.
-* A second stage (:func:`second_stage`) re-estimates every angle from its own
-  samples with the bank's S0 as guide: the polarization ratio ``I / (S0 / 2)``
-  (colour) is interpolated by normalised convolution (the lattice's bilinear tent
-  smoothed by a Gaussian: affine ratios come back exactly) and multiplied back.
-  The ratio is ``1 + DoLP cos(2 (theta - AoLP))``, free of the intensity's texture,
-  so this is where the DoLP and AoLP gain comes from (after the Stokes-domain and
-  polarization-difference ideas of Qiu et al. 2019 and Li et al. 2019).
+* A second stage re-estimates every angle from its own samples with the bank's S0
+  as guide, through the polarization ratio ``I / (S0 / 2)``, which is
+  ``1 + DoLP cos(2 (theta - AoLP))``, free of the intensity's texture: this is where
+  the DoLP and AoLP gain comes from (after the Stokes-domain and
+  polarization-difference ideas of Qiu et al. 2019 and Li et al. 2019).  Colour
+  layouts run the shared ratio (:func:`polcam.demosaicing._shared_ratio.shared_ratio_stage`:
+  the ratios of all colours of an angle, each colour's smooth offset removed,
+  interpolated on the angle's period-2 lattice, plus each colour's smooth residual);
+  :func:`second_stage` is the per-colour ratio stage (each (angle, colour) lattice on
+  its own, the lattice's bilinear tent smoothed by a Gaussian), selectable by
+  :data:`LMMSE_PARAMS`.
 * Weights exist for two cell geometries: orthogonal angles on the diagonals of the
   2x2 cell (IMX250: ``90 45 / 135 0``) and side by side.  Any other layout (other
   arrangements, Bayer phases, ROI offsets, mirrored read-outs) is brought to one of
@@ -47,11 +51,13 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from polcam.demosaicing._lattice import bilinear_cells, run_jobs, sublattices
+from polcam.demosaicing._lattice import bilinear_cells, normconv, run_jobs, sublattices
+from polcam.demosaicing._lattice import gauss_kernel as _gauss
+from polcam.demosaicing._lattice import tent_kernel as _tent_kernel
 from polcam.demosaicing._registry import register
+from polcam.demosaicing._shared_ratio import shared_ratio_stage
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 
@@ -289,8 +295,9 @@ def _job(blocks: np.ndarray, weights: np.ndarray, out: np.ndarray, r0: int, r1: 
 
 #: Parameters of the second stage (docs/demosaic.md says how they were chosen).
 LMMSE_PARAMS: dict[str, float | str] = {
-    # second stage per kind of layout: "ratio" (polarization ratio), "difference" or "none"
-    "color_stage": "ratio",
+    # second stage per kind of layout: "shared-ratio" (colour only), "ratio" (polarization ratio of
+    # each lattice), "difference" or "none"
+    "color_stage": "shared-ratio",
     "mono_stage": "none",
     # Gaussian of the normalised convolution of the ratios / differences, pixels (colour, mono)
     "sigma": 2.0,
@@ -302,36 +309,12 @@ LMMSE_PARAMS: dict[str, float | str] = {
     # of ``tent_sigma``: ratios that are affine in x and y come back exactly)
     "kernel": "tent",
     "tent_sigma": 1.5,
+    # the "shared-ratio" stage (colour; polcam.demosaicing._shared_ratio): Gaussians in pixels of the
+    # all-colour ratio (with the period-2 tent), the colours' offsets and the colours' residual
+    "common_sigma": 1.2,
+    "offset_sigma": 12.0,
+    "residual_sigma": 3.0,
 }
-
-
-def _gauss(sigma: float) -> np.ndarray:
-    """Gaussian kernel of ``sigma`` pixels truncated at 2.5 sigma, float32."""
-    r = max(1, int(np.ceil(2.5 * sigma)))
-    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
-    return (k / k.sum()).astype(np.float32)
-
-
-def _tent_kernel(period: int, sigma: float) -> np.ndarray:
-    """The tent ``tri(d / period)`` convolved with a Gaussian of ``sigma`` pixels (none if
-    ``sigma`` is 0), float32, sum 1.
-
-    On a lattice of that period the tent's copies sum to a constant and their first moments
-    vanish at every pixel (its spectrum has double zeros at the lattice's non-zero
-    frequencies); convolving with any kernel keeps both, so normalised convolution with this
-    kernel reproduces affine functions exactly."""
-    d = np.arange(-(period - 1), period, dtype=np.float64)
-    k = np.maximum(0.0, 1.0 - np.abs(d) / period)
-    if sigma > 0:
-        k = np.convolve(k, _gauss(sigma).astype(np.float64))
-    return (k / k.sum()).astype(np.float32)
-
-
-def _indicator_blur(n: int, offset: int, period: int, kernel: np.ndarray) -> np.ndarray:
-    """``kernel`` applied to the 0/1 indicator of ``offset::period`` along a line of n (BORDER_REFLECT)."""
-    ind = np.zeros((1, n), np.float32)
-    ind[0, offset::period] = 1.0
-    return cv2.sepFilter2D(ind, cv2.CV_32F, kernel, np.ones(1, np.float32), borderType=cv2.BORDER_REFLECT)[0]
 
 
 def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, sigma: float,
@@ -393,16 +376,7 @@ def second_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, mode: str, 
 
     def job(k: int, c: int) -> None:
         offsets = sublattices(lay, k, c)
-        sparse = np.zeros((h, w), np.float32)
-        for oy, ox in offsets:
-            sparse[oy::period, ox::period] = val[oy::period, ox::period]
-        q = cv2.sepFilter2D(sparse, cv2.CV_32F, kern, kern, borderType=cv2.BORDER_REFLECT)
-        blurs = [(_indicator_blur(h, oy, period, kern), _indicator_blur(w, ox, period, kern)) for oy, ox in offsets]
-        if len(blurs) == 1:  # a rectangular lattice: the blurred mask is an outer product
-            q *= (1 / np.maximum(blurs[0][0], np.float32(1e-12)))[:, None]
-            q *= (1 / np.maximum(blurs[0][1], np.float32(1e-12)))[None, :]
-        else:
-            q /= np.maximum(sum(np.outer(a, b) for a, b in blurs), np.float32(1e-12))
+        q = normconv(val, offsets, period, kern)
         est = out[k, ..., c]
         if mode == "ratio":
             np.multiply(q, base[..., c], out=est)
@@ -447,7 +421,11 @@ def run_lmmse(img: np.ndarray, lay: Layout, *, weights: dict[str, np.ndarray],
         canon = canon[list(p.relabel)]
     stack = np.ascontiguousarray(_untransform(canon, p.transform))
     mode = str(params["color_stage" if lay.is_color else "mono_stage"])
-    if mode != "none":
+    if mode == "shared-ratio":
+        stack = shared_ratio_stage(img, stack, lay, common_sigma=float(params["common_sigma"]),
+                                   offset_sigma=float(params["offset_sigma"]),
+                                   residual_sigma=float(params["residual_sigma"]), eps=float(params["ratio_eps"]))
+    elif mode != "none":
         kernel = str(params.get("kernel", "gauss"))
         sigma = float(params["tent_sigma"] if kernel == "tent" else params["sigma" if lay.is_color else "mono_sigma"])
         stack = second_stage(img, stack, lay, mode=mode, sigma=sigma, eps=float(params["ratio_eps"]),

@@ -44,7 +44,7 @@ REFERENCE = ("a per-pixel blend of polcam's lmmse and eari, weighted by their lo
 #: Parameters of the blend (docs/demosaic.md says how they were chosen).
 BLEND_PARAMS: dict[str, float] = {
     # lmmse takes over where the relative disagreement d / m^2 reaches tau
-    "tau": 0.1,
+    "tau": 0.02,
     # Gaussian of the local averages, pixels
     "sigma": 4.0,
     # dark floor of m, relative to the mosaic's mean

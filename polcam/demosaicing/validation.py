@@ -23,6 +23,10 @@ they are evaluation data for the final report only (``polcam bench demosaic``).
 
 The score of a variant is the mean over the groups of (S0 PSNR + DoLP PSNR), each
 group's PSNRs averaged over its scenes (:func:`score`).
+
+``--blend`` selects ``lmmse-eari``'s blend (:func:`select_blend`) and ``--shared`` the
+Gaussians of the colour shared-ratio stage (:func:`select_shared`), both with the shipped
+weights.
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ import numpy as np
 
 from polcam.bench.demosaic import quality
 from polcam.demosaicing._registry import demosaic, mosaic_stack
-from polcam.demosaicing.lmmse import LMMSE_PARAMS, run_lmmse
+from polcam.demosaicing.lmmse import LMMSE_PARAMS, _weights, run_lmmse
 from polcam.demosaicing.lmmse_eari import BLEND_PARAMS, run_blend
 from polcam.demosaicing.photos import VALIDATION_PHOTOS, photo_stack
 from polcam.demosaicing.training import LUMA, _noisy, fit_all, gram_sums, training_stack
@@ -45,7 +49,8 @@ from polcam.errors import MethodError
 from polcam.mosaic import parse_layout
 from polcam.synth.patterns import SCENES, make_scene
 
-__all__ = ["VALIDATION_SEED", "evaluate", "main", "score", "select", "select_blend", "stage_params", "validation_scenes"]
+__all__ = ["VALIDATION_SEED", "evaluate", "main", "score", "select", "select_blend", "select_shared", "stage_params",
+           "validation_scenes"]
 
 #: Seed of the validation scenes (training: 2024; the benchmark's synthetic scenes: 0).
 VALIDATION_SEED = 1
@@ -62,6 +67,11 @@ PHOTOS = (0, 80)
 #: Blend thresholds and Gaussians tried for ``lmmse-eari`` (:func:`select_blend`).
 BLEND_TAUS = (0.03, 0.05, 0.1, 0.2, 0.4)
 BLEND_SIGMAS = (2.0, 4.0)
+#: Gaussians (pixels) of the shared-ratio stage tried (:func:`select_shared`): the all-colour ratio,
+#: the colours' offsets, the colours' residual.
+SHARED_COMMONS = (0.8, 1.2, 1.6)
+SHARED_OFFSETS = (12.0, 24.0)
+SHARED_RESIDUALS = (3.0, 4.0, 6.0)
 #: Second stages tried, (mode, sigma).
 STAGES = (("none", 2.0), ("difference", 2.0), ("ratio", 1.0), ("ratio", 1.5), ("ratio", 2.0), ("ratio", 3.0))
 
@@ -227,6 +237,43 @@ def select_blend(*, taus: Sequence[float] = BLEND_TAUS, sigmas: Sequence[float] 
     return rows
 
 
+def select_shared(*, commons: Sequence[float] = SHARED_COMMONS, offsets: Sequence[float] = SHARED_OFFSETS,
+                  residuals: Sequence[float] = SHARED_RESIDUALS,
+                  baselines: Sequence[str] = ("bilinear", "eari", "lmmse", "lmmse-eari"),
+                  validation: dict[str, int] | None = None) -> list[dict[str, Any]]:
+    """Run ``lmmse`` with the shipped weights and the shared-ratio second stage
+    (:func:`polcam.demosaicing._shared_ratio.shared_ratio_stage`) for every (common, offset,
+    residual) Gaussian, the third round's ratio stage (tent kernel) and the ``baselines`` on the
+    colour validation set.
+
+    Returns
+    -------
+    list of dict
+        Rows like :func:`select`'s, with ``common``, ``offset`` and ``residual`` (None for the
+        baselines and the ratio stage).
+    """
+    lay = parse_layout(LAYOUTS[0])
+    val = validation_scenes(color=True, **{k: v for k, v in (validation or {}).items() if k != "seed"})
+    none = {"common": None, "offset": None, "residual": None}
+    rows: list[dict[str, Any]] = []
+    for m in baselines:
+        res = evaluate(lambda raw, m=m: demosaic(raw, layout=lay, method=m), val)
+        rows.append({"kind": "color", "variant": m, "ridge": None, **none, "score": score(res), **res})
+    variants = [("lmmse, ratio stage (tent, third round)", {"color_stage": "ratio", "kernel": "tent"}, none)]
+    for common, offset, residual in itertools.product(commons, offsets, residuals):
+        variants.append((f"lmmse, shared ratio, common {common:g}, offsets {offset:g}, residual {residual:g}",
+                         {"color_stage": "shared-ratio", "common_sigma": common, "offset_sigma": offset,
+                          "residual_sigma": residual},
+                         {"common": common, "offset": offset, "residual": residual}))
+    weights = _weights()
+    for name, upd, cols in variants:
+        params = {**LMMSE_PARAMS, **upd}
+        res = evaluate(lambda raw, p=params: run_lmmse(raw, lay, weights=weights, params=p), val)
+        # "ridge" set: format_markdown's "best" line picks among these rows
+        rows.append({"kind": "color", "variant": name, "ridge": 0.0, **cols, "score": score(res), **res})
+    return rows
+
+
 def format_markdown(rows: Sequence[dict[str, Any]]) -> str:
     """One table per kind, and the best lmmse variant of each."""
     lines: list[str] = []
@@ -263,11 +310,23 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="select lmmse-eari's blend (with the shipped lmmse weights) instead of the banks")
     ap.add_argument("--taus", type=float, nargs="+", default=list(BLEND_TAUS), help="blend thresholds tried")
     ap.add_argument("--sigmas", type=float, nargs="+", default=list(BLEND_SIGMAS), help="blend Gaussians tried")
+    ap.add_argument("--shared", action="store_true",
+                    help="select the shared-ratio second stage of colour lmmse (shipped weights) instead of the banks")
+    ap.add_argument("--commons", type=float, nargs="+", default=list(SHARED_COMMONS),
+                    help="shared-ratio Gaussians of the all-colour ratio tried (pixels)")
+    ap.add_argument("--offsets", type=float, nargs="+", default=list(SHARED_OFFSETS),
+                    help="shared-ratio Gaussians of the colour offsets tried (pixels)")
+    ap.add_argument("--residuals", type=float, nargs="+", default=list(SHARED_RESIDUALS),
+                    help="shared-ratio Gaussians of the colour residual tried (pixels)")
     ap.add_argument("--stages", nargs="+", default=[f"{m}:{g:g}" for m, g in STAGES],
                     help="second stages tried, MODE:SIGMA")
     args = ap.parse_args(argv)
     if args.seed == VALIDATION_SEED:
         ap.error(f"--seed {args.seed}: the training seed must differ from the validation seed")
+    if args.shared:
+        rows = select_shared(commons=args.commons, offsets=args.offsets, residuals=args.residuals)
+        sys.stdout.write(format_markdown(rows) + "\n")
+        return 0
     if args.blend:
         rows = select_blend(taus=args.taus, sigmas=args.sigmas, kinds=args.kinds)
         sys.stdout.write(format_markdown(rows) + "\n")

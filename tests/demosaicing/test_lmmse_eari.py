@@ -55,10 +55,10 @@ def test_blend_limits_are_eari_and_lmmse(lay: Layout, monkeypatch: pytest.Monkey
 
 
 def test_blend_recovers_what_lmmse_loses_on_pattern_scenes() -> None:
-    """On the pattern scenes (seed 1, 128 pixels; the shipped lmmse loses most on smooth and
-    sweep), the blend's mean S0 and DoLP PSNR are each at least 1 dB above lmmse's (measured
-    with the shipped tau 0.1: +1.5 dB both; the earlier tau 0.2 leaned further towards eari
-    there and gave +2 / +1.5 dB)."""
+    """On the pattern scenes (seed 1, 128 pixels; lmmse loses most to eari on smooth and
+    sweep), the blend's mean S0 and DoLP PSNR are each at least 0.3 dB above lmmse's (measured
+    with the fourth round's lmmse and tau 0.02: +0.57 / +0.42 dB; with the third round's lmmse
+    and tau 0.1 the gain was +1.5 dB both: the new lmmse loses less there)."""
     psnr: dict[str, list[tuple[float, float]]] = {}
     for name in SCENES:
         truth = make_scene(name, height=128, width=128, seed=1, color=True).stack
@@ -70,4 +70,4 @@ def test_blend_recovers_what_lmmse_loses_on_pattern_scenes() -> None:
             dl = float(np.mean((dolp(est).astype(np.float64) - dolp(t)) ** 2))
             psnr.setdefault(method, []).append((10 * np.log10(4 / s0), 10 * np.log10(1 / dl)))
     lm_, bl = np.mean(psnr["lmmse"], axis=0), np.mean(psnr["lmmse-eari"], axis=0)
-    assert bl[0] >= lm_[0] + 1.0 and bl[1] >= lm_[1] + 1.0, (lm_, bl)
+    assert bl[0] >= lm_[0] + 0.3 and bl[1] >= lm_[1] + 0.3, (lm_, bl)

@@ -15,6 +15,7 @@ from polcam.demosaicing.validation import (
     main,
     score,
     select,
+    select_shared,
     stage_params,
     validation_scenes,
 )
@@ -80,6 +81,24 @@ def test_select_runs_every_variant() -> None:
         select(scenes=1, size=32, seed=5, patterns=(0, 1, 2), validation=SMALL)
     with pytest.raises(MethodError, match="photos"):
         select(scenes=1, size=32, seed=5, photos=(0, 1, 2), validation=SMALL)
+
+
+def test_select_shared_runs_every_variant_and_matches_the_shipped_method() -> None:
+    """One row per baseline, the third round's ratio stage and every (common, offset, residual);
+    the row with the shipped Gaussians scores exactly what the shipped ``lmmse`` scores."""
+    from polcam.demosaicing.lmmse import LMMSE_PARAMS
+
+    shipped = (LMMSE_PARAMS["common_sigma"], LMMSE_PARAMS["offset_sigma"], LMMSE_PARAMS["residual_sigma"])
+    rows = select_shared(commons=(shipped[0], 2.0), offsets=(shipped[1],), residuals=(shipped[2], 6.0),
+                         baselines=("bilinear", "lmmse"), validation=SMALL)
+    assert len(rows) == 2 + 1 + 2 * 1 * 2
+    assert all(r["kind"] == "color" and np.isfinite(r["score"]) for r in rows)
+    lm_row = next(r for r in rows if r["variant"] == "lmmse")
+    same = next(r for r in rows if (r["common"], r["offset"], r["residual"]) == shipped)
+    assert same["score"] == pytest.approx(lm_row["score"], abs=1e-9)
+    ratio = next(r for r in rows if r["variant"].startswith("lmmse, ratio stage"))
+    assert ratio["score"] != pytest.approx(same["score"], abs=1e-6)
+    assert "best color: lmmse, " in format_markdown(rows)
 
 
 def test_stage_params_name_the_kernel() -> None:
