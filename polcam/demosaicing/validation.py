@@ -34,7 +34,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -46,7 +46,7 @@ from polcam.demosaicing.lmmse_eari import BLEND_PARAMS, run_blend
 from polcam.demosaicing.photos import VALIDATION_PHOTOS, photo_stack
 from polcam.demosaicing.training import LUMA, _noisy, fit_all, gram_sums, training_stack
 from polcam.errors import MethodError
-from polcam.mosaic import parse_layout
+from polcam.mosaic import Layout, parse_layout
 from polcam.synth.patterns import SCENES, make_scene
 
 __all__ = ["VALIDATION_SEED", "evaluate", "main", "score", "select", "select_blend", "select_shared", "stage_params",
@@ -185,22 +185,33 @@ def select(*, scenes: int = 150, size: int = 160, seed: int = 2024, ridges: Sequ
                 sums = {k: [a + b for a, b in zip(v, extra[key][k], strict=True)] for k, v in sums.items()}
         banks.update({(npat, nph, m, r): fit_all(sums, ridge=r, moments=m) for m in moments for r in ridges})
     rows: list[dict[str, Any]] = []
-    for color, layout in ((True, LAYOUTS[0]), (False, LAYOUTS[1])):
-        kind = "color" if color else "mono"
-        if kind not in kinds:
-            continue
-        lay = parse_layout(layout)
-        val = validation_scenes(color=color, **{k: v for k, v in (validation or {}).items() if k != "seed"})
-        for m in baselines:
-            res = evaluate(lambda raw, m=m: demosaic(raw, layout=lay, method=m), val)
-            rows.append({"kind": kind, "variant": m, "patterns": None, "photos": None, "moments": None,
-                         "ridge": None, "stage": None, "sigma": None, "score": score(res), **res})
+    for kind, lay, val in _validation_sets(kinds, validation):
+        rows += _baseline_rows(kind, lay, val, baselines, ("patterns", "photos", "moments", "ridge", "stage", "sigma"))
         for ((npat, nph, order, ridge), bank), (mode, sigma) in itertools.product(banks.items(), stages):
             params = stage_params(mode, sigma)
             res = evaluate(lambda raw, b=bank, p=params: run_lmmse(raw, lay, weights=b, params=p), val)
             name = f"lmmse +{npat} patterns, +{nph} photos, moments {order}, ridge {ridge:g}, {mode} {sigma:g}"
             rows.append({"kind": kind, "variant": name, "patterns": npat, "photos": nph, "moments": order,
                          "ridge": ridge, "stage": mode, "sigma": sigma, "score": score(res), **res})
+    return rows
+
+
+def _validation_sets(kinds: Sequence[str], validation: dict[str, int] | None) -> Iterator[tuple[str, Layout, Any]]:
+    """(kind, layout, validation scenes) for each of ``kinds`` ("color", "mono") asked for."""
+    for color, layout in ((True, LAYOUTS[0]), (False, LAYOUTS[1])):
+        kind = "color" if color else "mono"
+        if kind in kinds:
+            yield kind, parse_layout(layout), validation_scenes(
+                color=color, **{k: v for k, v in (validation or {}).items() if k != "seed"})
+
+
+def _baseline_rows(kind: str, lay: Layout, val: Any, baselines: Sequence[str],
+                   empty: Sequence[str]) -> list[dict[str, Any]]:
+    """One row per registered method in ``baselines`` on ``val``, the columns ``empty`` set to None."""
+    rows = []
+    for m in baselines:
+        res = evaluate(lambda raw, m=m: demosaic(raw, layout=lay, method=m), val)
+        rows.append({"kind": kind, "variant": m, **dict.fromkeys(empty), "score": score(res), **res})
     return rows
 
 
@@ -218,16 +229,8 @@ def select_blend(*, taus: Sequence[float] = BLEND_TAUS, sigmas: Sequence[float] 
         Rows like :func:`select`'s, with ``tau`` and ``sigma`` (None for baselines).
     """
     rows: list[dict[str, Any]] = []
-    for color, layout in ((True, LAYOUTS[0]), (False, LAYOUTS[1])):
-        kind = "color" if color else "mono"
-        if kind not in kinds:
-            continue
-        lay = parse_layout(layout)
-        val = validation_scenes(color=color, **{k: v for k, v in (validation or {}).items() if k != "seed"})
-        for m in baselines:
-            res = evaluate(lambda raw, m=m: demosaic(raw, layout=lay, method=m), val)
-            rows.append({"kind": kind, "variant": m, "tau": None, "sigma": None, "ridge": None, "score": score(res),
-                         **res})
+    for kind, lay, val in _validation_sets(kinds, validation):
+        rows += _baseline_rows(kind, lay, val, baselines, ("tau", "sigma", "ridge"))
         for tau, sigma in itertools.product(taus, sigmas):
             params = {**BLEND_PARAMS, "tau": tau, "sigma": sigma}
             res = evaluate(lambda raw, p=params: run_blend(raw, lay, params=p), val)
@@ -252,13 +255,9 @@ def select_shared(*, commons: Sequence[float] = SHARED_COMMONS, offsets: Sequenc
         Rows like :func:`select`'s, with ``common``, ``offset`` and ``residual`` (None for the
         baselines and the ratio stage).
     """
-    lay = parse_layout(LAYOUTS[0])
-    val = validation_scenes(color=True, **{k: v for k, v in (validation or {}).items() if k != "seed"})
+    _, lay, val = next(_validation_sets(("color",), validation))
     none = {"common": None, "offset": None, "residual": None}
-    rows: list[dict[str, Any]] = []
-    for m in baselines:
-        res = evaluate(lambda raw, m=m: demosaic(raw, layout=lay, method=m), val)
-        rows.append({"kind": "color", "variant": m, "ridge": None, **none, "score": score(res), **res})
+    rows = _baseline_rows("color", lay, val, baselines, ("ridge", *none))
     variants = [("lmmse, ratio stage (tent, third round)", {"color_stage": "ratio", "kernel": "tent"}, none)]
     for common, offset, residual in itertools.product(commons, offsets, residuals):
         variants.append((f"lmmse, shared ratio, common {common:g}, offsets {offset:g}, residual {residual:g}",
