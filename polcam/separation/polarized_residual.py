@@ -370,8 +370,9 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
 def _declipped(stack: np.ndarray) -> np.ndarray:
     """The stack with clipped samples rebuilt from the unclipped ones where the physics allows.
 
-    ``stack`` is (4, H, W, C) float32 (angles 0, 45, 90, 135; C = 3 colours, or 1 for mono).  A sample at or above the white
-    level (``_SATURATED``) holds less than the light that fell on it.  Per pixel and channel:
+    ``stack`` is (4, H, W, C) float32 (angles 0, 45, 90, 135; C = 3 colours, or 1 for mono).
+    A sample at or above the white level (``_SATURATED``) holds less than the light that fell
+    on it.  Per pixel and channel:
 
     * one clipped sample: every ideal polarizer stack has ``I0 + I90 = I45 + I135`` (both S0),
       so the clipped one is the sum of its two neighbours' angles less the opposite one;
