@@ -81,10 +81,15 @@ def _chroma(v: np.ndarray) -> np.ndarray:
     return v / v.sum()
 
 
-def _parts(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _checked_stack(stack: np.ndarray) -> np.ndarray:
     s = np.asarray(stack, dtype=np.float32)
     if s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
         raise MethodError(f"illuminant: stack of shape {s.shape}: expected (4, H, W, 3)")
+    return s
+
+
+def _parts(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    s = _checked_stack(stack)
     ic = s.mean(axis=0)
     isv = 0.5 * np.hypot(s[0] - s[2], s[1] - s[3])
     unsat = s.max(axis=0).max(axis=-1) < _SATURATED
@@ -115,7 +120,7 @@ def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None)
     numpy.ndarray
         (3,) float64 with mean 1 (ones when the polarization is not significant).
     """
-    _parts(stack)  # shape check
+    _checked_stack(stack)
     eff = None if efficiency is None else _check_efficiency(efficiency)
     return _unit_mean(projected_chromaticity(stack, efficiency=eff, own_colour=OWN_COLOUR))
 
