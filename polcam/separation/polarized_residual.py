@@ -69,6 +69,9 @@ DEFAULTS: dict[str, Any] = {
 #: Where polarized highlights measure k (unpolarized / polarized specular light) below this, the colour
 #: prior is weighted down in proportion: step 2 has already removed almost all of their specular light.
 _PRIOR_K = 0.5
+#: Largest degree of polarization of diffuse light kept as diffuse (Atkinson & Hancock 2006, Fresnel
+#: transmission: ~0.53 at grazing view for n = 1.8, below 0.4 short of 80 degrees).
+_MAX_DIFFUSE_DOLP = 0.5
 #: Noise deviations at which the non-negative garrote of the polarized amplitude (``noise="shrink"``) sets in.
 _KSIG = 2.5
 
@@ -190,6 +193,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     c2 = np.where(safe, qq / np.where(safe, nn, 1), 1.0)[..., None]
     s2 = np.where(safe, uu / np.where(safe, nn, 1), 0.0)[..., None]
     amp = qs * c2 + us * s2                                 # (H, W, 3) signed
+    amp_px = q * c2 + u * s2                                # the same, unsmoothed (the pixel's own colours)
     # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
     # colour demosaicing's polarization errors differ between channels and partly cancel in it
     a_coh = (nn / 3.0).astype(np.float32)
@@ -212,8 +216,10 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         ee = (e * e).sum(axis=-1)
         det = gg * ee - ge * ge
         well = det > (0.2 ** 2) * gg * ee                  # e far from G's colour (sin > 0.2)
-        ga = along * gg
-        ea = (amp * e).sum(axis=-1)
+        # the decomposition from the pixel's own amplitudes: smoothing mixes the colours of neighbouring
+        # pixels, which near occluding contours (where diffuse polarization is strongest) differ most
+        ga = amp_px @ g
+        ea = (amp_px * e).sum(axis=-1)
         dsafe = np.where(well, det, 1.0)
         al = (ee * ga - ge * ea) / dsafe
         be = (gg * ea - ge * ga) / dsafe
@@ -223,7 +229,13 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         # little or no specular light, e.g. near occluding contours): only a G term of the opposite
         # sign (perpendicular AoLP) is specular there, so the polarized diffuse light is kept
         dom = np.abs(be) * np.sqrt(ee) > np.abs(al) * np.sqrt(gg)
-        take = well & sig_off & ((al * be < 0) | dom)
+        # and physically possible: a diffuse surface's degree of polarization stays below 0.5 (Atkinson &
+        # Hancock 2006: at most ~0.53 at grazing view for n = 1.8); a larger |beta| e comes from a misfit
+        # (opposite-signed alpha and beta cancelling each other on strongly polarized highlights)
+        a_c = np.where(al * be < 0, np.abs(al), 0.0)
+        plaus = (np.abs(be)[..., None] * e
+                 <= _MAX_DIFFUSE_DOLP * np.maximum(ic - a_c[..., None] * g, 0.0) + 1.0 / 255).all(axis=-1)
+        take = well & sig_off & ((al * be < 0) | dom) & plaus
         a = np.where(take, np.where(al * be < 0, np.abs(al), 0.0), a).astype(np.float32)
         b = np.where(take, np.abs(be), 0.0).astype(np.float32)
     ub = np.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)
@@ -331,7 +343,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
                 near = cv2.blur(gate.astype(np.float32), (k_ctx, k_ctx))
                 wgt = wgt * (1.0 - near * (1.0 - np.clip(k_loc / _PRIOR_K, 0.0, 1.0)))
             wgt = wgt[..., None]
-            diffuse = wgt * np.minimum(sf, diffuse) + (1.0 - wgt) * diffuse
+            diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig)
     # saturated pixels (a channel at the white level in all four angles): that channel's polarization
     # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
     # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
@@ -502,12 +514,31 @@ def _binned_spread(level: np.ndarray, absres: np.ndarray, valid: np.ndarray, bin
 
 
 
+def _garrote(x2: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """Non-negative garrote factor ``clip(1 - _KSIG^2 var / x2, 0, 1)`` for a value of square ``x2``."""
+    return np.clip(1.0 - (_KSIG * _KSIG) * var / np.maximum(x2, 1e-12), 0.0, 1.0)
+
+
+def _prior_removal(diffuse: np.ndarray, sf: np.ndarray, sig: np.ndarray) -> np.ndarray:
+    """What the colour prior removes from ``diffuse``, shrunk by the noise of Ic.
+
+    ``diffuse`` and ``sf`` (the prior's specular-free estimate) are (H, W, 3); ``sig`` is the
+    deviation of q and u per pixel and channel, (H, W, 3).  The removal ``diffuse - min(sf, diffuse)``
+    is scaled by a garrote at ``_KSIG`` deviations of Ic's noise over the three channels
+    (``var Ic = var q / 2``): on a noisy stack the specular-free estimate scatters below the diffuse by
+    the noise alone.  Returns (H, W, 3) float32 >= 0.
+    """
+    delta = diffuse - np.minimum(sf, diffuse)
+    dn2 = (delta * delta).sum(axis=-1, keepdims=True)
+    return (delta * _garrote(dn2, 0.5 * (sig * sig).sum(axis=-1, keepdims=True))).astype(np.float32)
+
+
 def _debias(isv: np.ndarray, sig: np.ndarray, how: str) -> np.ndarray:
     """The polarized amplitude with the noise's bias removed (``isv``, ``sig`` same shape)."""
     if how == "rice":      # E|A|^2 = a^2 + 2 sigma^2
         return np.sqrt(np.maximum(isv * isv - 2.0 * sig * sig, 0.0))
     if how == "shrink":
-        return isv * np.clip(1.0 - _KSIG * _KSIG * sig * sig / np.maximum(isv * isv, 1e-12), 0.0, 1.0)
+        return isv * _garrote(isv * isv, sig * sig)
     if how == "thresh":
         return np.maximum(isv - _KSIG * sig, 0.0)
     raise MethodError(f"polarized-residual: noise={how!r}: expected 'off', 'rice', 'shrink' or 'thresh'")

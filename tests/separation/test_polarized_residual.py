@@ -318,3 +318,59 @@ def test_overexposed_diffuse_surface_is_left_as_measured():
     st = np.clip(_stack(d, np.zeros(d.shape[:2]), (1, 1, 1), rho_s=0.0, phi_s=0.0), 0.0, 1.0)
     res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
     np.testing.assert_allclose(res.diffuse[30:42, 22:42], st.mean(axis=0)[30:42, 22:42], atol=1e-6)
+
+
+def test_polarized_diffuse_on_a_thin_contour_keeps_its_own_colour():
+    # diffuse light polarized only along one-pixel contours (DoLP 0.3, as at an occluding contour)
+    # between patches of different colours: the decomposition uses each pixel's own amplitudes, so
+    # the smoothing of the polarization axis does not mix the neighbours' colours into it
+    d = _scene()
+    h, w = d.shape[:2]
+    rho = np.zeros((h, w))
+    rho[8:24, 19] = rho[8:24, 24] = rho[8:24, 39] = rho[8:24, 44] = 0.3
+    st = synthesize(d, rho[..., None] * d, np.full(d.shape, 0.3 + np.pi / 2))
+    spec = 0.3 * _bump(h, w, 36, 32, 4)
+    st = st + synthesize(spec[..., None] * np.ones(3), spec[..., None] * np.ones(3), np.full(d.shape, 0.3))
+    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    rim = rho > 0
+    err = np.abs(res.diffuse - d)[rim]
+    assert err.max() < 0.01
+    # imin takes the contours' polarized light out
+    assert np.abs(polcam.separate(st, method="imin").diffuse - d)[rim].max() > 0.05
+
+
+def test_no_diffuse_polarization_beyond_the_physical_bound_near_brewster(monkeypatch):
+    # near Brewster's angle the highlights are strongly polarized and partly clipped: their amplitudes
+    # then fit alpha G + beta e with large alpha and beta of opposite signs, a "diffuse" DoLP well
+    # above what diffuse light can have; the bound (_MAX_DIFFUSE_DOLP) removes that light as specular
+    import polcam.separation.polarized_residual as pr
+    from polcam.bench.quality import score
+    from polcam.synth.render import render
+    from polcam.synth.scenes import scene
+
+    r = render(scene("Brewster"), size=64, seed=0)
+    bounded = score(polcam.separate(r.stack, method="polarized-residual").diffuse, r.diffuse, r.mask)[2]
+    monkeypatch.setattr(pr, "_MAX_DIFFUSE_DOLP", 1e9)
+    unbounded = score(polcam.separate(r.stack, method="polarized-residual").diffuse, r.diffuse, r.mask)[2]
+    assert bounded > unbounded + 0.2
+
+
+def test_colour_prior_removal_is_shrunk_by_the_noise():
+    # the colour prior's removal is a garrote at _KSIG deviations of Ic's noise: a removal at the
+    # noise's level is (almost) undone, one far above it is kept
+    from polcam.separation.polarized_residual import _KSIG, _prior_removal
+
+    h, w = 4, 5
+    sig = np.full((h, w, 3), 0.01, np.float32)            # deviation of q and u
+    sd_ic = float(np.sqrt(0.5 * 3) * 0.01)                # of Ic, over the three channels
+    diffuse = np.full((h, w, 3), 0.5, np.float32)
+    for size, lo, hi in ((0.5 * _KSIG * sd_ic, 0.0, 1e-6), (10 * _KSIG * sd_ic, 0.98, 0.995)):
+        t = size / np.sqrt(3.0)                           # a removal of norm `size` along white
+        sf = diffuse - t
+        kept = _prior_removal(diffuse, sf, sig).sum(axis=-1) / (3 * t)
+        assert np.all((kept >= lo) & (kept <= hi))
+    # never more than the prior asked for, never negative (sf above the diffuse removes nothing)
+    rng = np.random.default_rng(0)
+    sf = diffuse + rng.normal(0, 0.05, diffuse.shape).astype(np.float32)
+    out = _prior_removal(diffuse, sf, sig)
+    assert np.all(out >= 0) and np.all(out <= diffuse - np.minimum(sf, diffuse) + 1e-7)
