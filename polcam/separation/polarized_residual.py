@@ -60,7 +60,8 @@ DEFAULTS: dict[str, Any] = {
     "min_saturation": 0.04,      # below: achromatic (no hue)
     "polarized_threshold": 0.02,  # polarized specular / intensity that marks a highlight neighbourhood
     "max_ratio": 4.0,            # unpolarized specular residual <= max_ratio x the polarized specular nearby
-    "noise": "shrink",           # the amplitude's noise bias: "off", "rice", "shrink" (garrote) or "thresh"
+    "noise": "shrink",           # the amplitude's noise bias: "off", "rice", "shrink" (garrote) or "thresh";
+                                 # unless "off", the colour prior's removal is shrunk by the noise too
     "declip": True,              # rebuild clipped samples from the other angles (S0 identity, shared AoLP)
     "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"
 }
@@ -125,7 +126,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         See :data:`DEFAULTS`: ``illuminant`` (RGB or None), ``efficiency``
         ((3,) per-colour polarizer efficiency in (0, 1] or None),
         ``diffuse_polarization`` (keep a perpendicular polarized diffuse part), ``noise`` (how the
-        polarized amplitude's noise bias is removed), ``declip`` (rebuild clipped samples),
+        polarized amplitude's noise bias is removed; unless "off", the colour prior's removal is
+        shrunk by the noise too), ``declip`` (rebuild clipped samples),
         ``context``, ``hue_bins``, ``min_saturation``, ``polarized_threshold``.
 
     Returns
@@ -343,7 +345,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
                 near = cv2.blur(gate.astype(np.float32), (k_ctx, k_ctx))
                 wgt = wgt * (1.0 - near * (1.0 - np.clip(k_loc / _PRIOR_K, 0.0, 1.0)))
             wgt = wgt[..., None]
-            diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig)
+            diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig)
     # saturated pixels (a channel at the white level in all four angles): that channel's polarization
     # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
     # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
