@@ -40,6 +40,7 @@ import numpy as np
 
 from polcam.errors import MethodError
 from polcam.separation._illuminant import _SATURATED, estimate_illuminant
+from polcam.separation._polarization_noise import _KSIG, _debias, _prior_removal, _stokes_noise
 from polcam.separation._registry import register
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "DEFAULTS"]
@@ -73,8 +74,6 @@ _PRIOR_K = 0.5
 #: Largest degree of polarization of diffuse light kept as diffuse (Atkinson & Hancock 2006, Fresnel
 #: transmission: ~0.53 at grazing view for n = 1.8, below 0.4 short of 80 degrees).
 _MAX_DIFFUSE_DOLP = 0.5
-#: Noise deviations at which the non-negative garrote of the polarized amplitude (``noise="shrink"``) sets in.
-_KSIG = 2.5
 
 
 def _check(opts: dict[str, Any]) -> None:
@@ -453,97 +452,6 @@ def _declipped(stack: np.ndarray) -> np.ndarray:
             keep = ok & (est >= v[k, cols])
             s[k[keep], yy[keep], xx[keep], cc[keep]] = est[keep]
     return s
-
-
-def _stokes_noise(stack: np.ndarray, ic: np.ndarray) -> np.ndarray:
-    """Standard deviation of the noise of q and u per pixel, (H, W[, C]) like ``ic``.
-
-    An ideal linear-polarizer stack obeys ``I0 + I90 = I45 + I135`` (both are S0) whatever the
-    scene, so ``r = (I0 + I90 - I45 - I135) / 2`` is noise only: with independent noise of
-    deviation ``sigma_I`` per image, ``var r = sigma_I^2`` and ``var q = var u = sigma_I^2 / 2``.
-    A real stack can break the identity systematically (unequal gains of the four polarizer
-    images, misregistration), while a smooth signal leaves a residual in any spatial high-pass;
-    so the estimate is the smaller of two: the consistency residual's ``|r| / sqrt 2``, and the
-    residual of a 3 x 3 box mean of q and u (``q - box(q)`` has variance ``sigma^2 (1 - 1/9)`` for
-    independent noise; a smooth gain error leaves nothing there).  Each is a robust spread
-    (1.4826 x the median absolute value) over pixels of similar intensity (eight quantile bins of
-    ``ic``: photon noise grows with the signal, so it is taken non-decreasing in the intensity),
-    linearly interpolated in ``ic``.
-    """
-    s = np.asarray(stack, dtype=np.float32)
-    shape = ic.shape
-    flat = (shape[0], shape[1], -1)
-    q = (0.5 * (s[0] - s[2])).reshape(flat)
-    u = (0.5 * (s[1] - s[3])).reshape(flat)
-    r = (0.5 * (s[0] + s[2] - s[1] - s[3])).reshape(flat)
-    i2 = ic.reshape(flat)
-    valid = (s.max(axis=0) < _SATURATED).reshape(flat)      # clipping breaks both identities
-    out = np.empty(i2.shape, dtype=np.float32)
-    for c in range(i2.shape[-1]):
-        lev = i2[..., c]
-        hp_q = np.abs(q[..., c] - cv2.blur(q[..., c], (3, 3)))
-        hp_u = np.abs(u[..., c] - cv2.blur(u[..., c], (3, 3)))
-        sig_r = _binned_spread(lev, np.abs(r[..., c]) / np.sqrt(2.0), valid[..., c])
-        sig_hp = _binned_spread(lev, np.sqrt(9.0 / 8.0) * 0.5 * (hp_q + hp_u), valid[..., c])
-        out[..., c] = np.minimum(sig_r, sig_hp)
-    return out.reshape(shape)
-
-
-def _binned_spread(level: np.ndarray, absres: np.ndarray, valid: np.ndarray, bins: int = 8) -> np.ndarray:
-    """Robust deviation of a zero-mean residual as a non-decreasing function of ``level``.
-
-    ``level``, ``absres`` (the residual's absolute value) and ``valid`` (which pixels to learn
-    from) are (H, W); the result, (H, W) float32, is defined at every pixel.
-    """
-    lev = level[valid]
-    res = absres[valid]
-    if lev.size == 0:
-        return np.zeros(level.shape, np.float32)
-    step = max(1, lev.size // 250_000)                 # a regular subsample is plenty for eight medians
-    lev, res = lev[::step], res[::step]
-    edges = np.quantile(lev, np.linspace(0, 1, bins + 1))
-    idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, bins - 1)
-    centres, sig = [], []
-    for b in range(bins):
-        m = idx == b
-        if m.sum() >= 50:
-            centres.append(float(np.median(lev[m])))
-            sig.append(1.4826 * float(np.median(res[m])))
-    if not centres:
-        return np.zeros(level.shape, np.float32)
-    return np.interp(level, centres, np.maximum.accumulate(np.asarray(sig))).astype(np.float32)
-
-
-
-
-def _garrote(x2: np.ndarray, var: np.ndarray) -> np.ndarray:
-    """Non-negative garrote factor ``clip(1 - _KSIG^2 var / x2, 0, 1)`` for a value of square ``x2``."""
-    return np.clip(1.0 - (_KSIG * _KSIG) * var / np.maximum(x2, 1e-12), 0.0, 1.0)
-
-
-def _prior_removal(diffuse: np.ndarray, sf: np.ndarray, sig: np.ndarray) -> np.ndarray:
-    """What the colour prior removes from ``diffuse``, shrunk by the noise of Ic.
-
-    ``diffuse`` and ``sf`` (the prior's specular-free estimate) are (H, W, 3); ``sig`` is the
-    deviation of q and u per pixel and channel, (H, W, 3).  The removal ``diffuse - min(sf, diffuse)``
-    is scaled by a garrote at ``_KSIG`` deviations of Ic's noise over the three channels
-    (``var Ic = var q / 2``): on a noisy stack the specular-free estimate scatters below the diffuse by
-    the noise alone.  Returns (H, W, 3) float32 >= 0.
-    """
-    delta = diffuse - np.minimum(sf, diffuse)
-    dn2 = (delta * delta).sum(axis=-1, keepdims=True)
-    return (delta * _garrote(dn2, 0.5 * (sig * sig).sum(axis=-1, keepdims=True))).astype(np.float32)
-
-
-def _debias(isv: np.ndarray, sig: np.ndarray, how: str) -> np.ndarray:
-    """The polarized amplitude with the noise's bias removed (``isv``, ``sig`` same shape)."""
-    if how == "rice":      # E|A|^2 = a^2 + 2 sigma^2
-        return np.sqrt(np.maximum(isv * isv - 2.0 * sig * sig, 0.0))
-    if how == "shrink":
-        return isv * _garrote(isv * isv, sig * sig)
-    if how == "thresh":
-        return np.maximum(isv - _KSIG * sig, 0.0)
-    raise MethodError(f"polarized-residual: noise={how!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
 
 
 def _inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:

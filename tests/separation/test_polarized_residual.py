@@ -140,7 +140,7 @@ def test_diffuse_bounds_and_one_specular_colour():
 
 
 def test_noise_estimate_matches_the_planted_deviation():
-    from polcam.separation.polarized_residual import _stokes_noise
+    from polcam.separation._polarization_noise import _stokes_noise
 
     rng = np.random.default_rng(5)
     d = _scene(96, 128)
@@ -353,24 +353,3 @@ def test_no_diffuse_polarization_beyond_the_physical_bound_near_brewster(monkeyp
     monkeypatch.setattr(pr, "_MAX_DIFFUSE_DOLP", 1e9)
     unbounded = score(polcam.separate(r.stack, method="polarized-residual").diffuse, r.diffuse, r.mask)[2]
     assert bounded > unbounded + 0.2
-
-
-def test_colour_prior_removal_is_shrunk_by_the_noise():
-    # the colour prior's removal is a garrote at _KSIG deviations of Ic's noise: a removal at the
-    # noise's level is (almost) undone, one far above it is kept
-    from polcam.separation.polarized_residual import _KSIG, _prior_removal
-
-    h, w = 4, 5
-    sig = np.full((h, w, 3), 0.01, np.float32)            # deviation of q and u
-    sd_ic = float(np.sqrt(0.5 * 3) * 0.01)                # of Ic, over the three channels
-    diffuse = np.full((h, w, 3), 0.5, np.float32)
-    for size, lo, hi in ((0.5 * _KSIG * sd_ic, 0.0, 1e-6), (10 * _KSIG * sd_ic, 0.98, 0.995)):
-        t = size / np.sqrt(3.0)                           # a removal of norm `size` along white
-        sf = diffuse - t
-        kept = _prior_removal(diffuse, sf, sig).sum(axis=-1) / (3 * t)
-        assert np.all((kept >= lo) & (kept <= hi))
-    # never more than the prior asked for, never negative (sf above the diffuse removes nothing)
-    rng = np.random.default_rng(0)
-    sf = diffuse + rng.normal(0, 0.05, diffuse.shape).astype(np.float32)
-    out = _prior_removal(diffuse, sf, sig)
-    assert np.all(out >= 0) and np.all(out <= diffuse - np.minimum(sf, diffuse) + 1e-7)
