@@ -98,12 +98,43 @@ def _prior_removal(diffuse: np.ndarray, sf: np.ndarray, sig: np.ndarray) -> np.n
     return (delta * _garrote(dn2, 0.5 * (sig * sig).sum(axis=-1, keepdims=True))).astype(np.float32)
 
 
-def _debias(isv: np.ndarray, sig: np.ndarray, how: str) -> np.ndarray:
-    """The polarized amplitude with the noise's bias removed (``isv``, ``sig`` same shape)."""
-    if how == "rice":      # E|A|^2 = a^2 + 2 sigma^2
-        return np.sqrt(np.maximum(isv * isv - 2.0 * sig * sig, 0.0))
+def _debias(isv: np.ndarray, sig: np.ndarray, how: str, *, components: int = 2) -> np.ndarray:
+    """The polarized amplitude with the noise's bias removed (``isv``, ``sig`` same shape).
+
+    ``isv`` is the length of ``components`` (2: q and u; 1: one projection) Stokes components, each
+    with noise of deviation ``sig``.
+    """
+    if how == "rice":      # E|A|^2 = a^2 + components sigma^2
+        return np.sqrt(np.maximum(isv * isv - components * sig * sig, 0.0))
     if how == "shrink":
         return isv * _garrote(isv * isv, sig * sig)
     if how == "thresh":
         return np.maximum(isv - _KSIG * sig, 0.0)
     raise MethodError(f"polarized-residual: noise={how!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
+
+
+#: Deviations of its own noise at which a smoothed amplitude fixes the polarization axis (:func:`_axis_debias`).
+_AXIS_KSIG = 4.0
+
+
+def _axis_debias(q: np.ndarray, u: np.ndarray, c2: np.ndarray, s2: np.ndarray, smoothed: np.ndarray,
+                 sig: np.ndarray, reduction: float, how: str) -> np.ndarray:
+    """The polarized amplitude per pixel and channel, unbiased where the polarization axis is known.
+
+    ``q``, ``u`` (H, W, C) are the Stokes components, ``(c2, s2)`` (H, W, 1) the unit polarization
+    axis of the smoothed components, ``smoothed`` (H, W, C) the smoothed signed amplitude along it,
+    ``sig`` (H, W, C) the deviation of q and u, and ``reduction`` the factor by which smoothing
+    reduced it (the smoothing kernel's root sum of squared weights).
+
+    Where ``|smoothed|`` exceeds ``_AXIS_KSIG`` of its own deviations (``reduction sig``), the
+    axis is signal, not noise: the projection ``par = q c2 + u s2`` has zero-mean noise, so
+    ``|par|`` is kept as it is (a garrote would shrink a true amplitude ``x`` by
+    ``_KSIG^2 sig^2 / x``: a fifth of it at five deviations), and only the orthogonal part, noise
+    for a coherent polarization, is debiased as one component.  Elsewhere the amplitude
+    ``hypot(q, u)`` is debiased as before (:func:`_debias`).  Returns (H, W, C) float32 >= 0.
+    """
+    par = q * c2 + u * s2
+    orth = u * c2 - q * s2
+    axis = np.abs(smoothed) > _AXIS_KSIG * reduction * sig
+    known = np.hypot(par, _debias(np.abs(orth), sig, how, components=1))
+    return np.where(axis, known, _debias(np.hypot(q, u), sig, how)).astype(np.float32)

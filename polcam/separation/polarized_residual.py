@@ -40,7 +40,7 @@ import numpy as np
 
 from polcam.errors import MethodError
 from polcam.separation._illuminant import _SATURATED, estimate_illuminant
-from polcam.separation._polarization_noise import _KSIG, _debias, _prior_removal, _stokes_noise
+from polcam.separation._polarization_noise import _axis_debias, _prior_removal, _stokes_noise
 from polcam.separation._registry import register
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "DEFAULTS"]
@@ -174,11 +174,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     if not np.all(eff == 1):
         q = q / eff.astype(np.float32)
         u = u / eff.astype(np.float32)
-    isv = np.hypot(q, u)
     sig = _stokes_noise(s, ic)
-    if opts["noise"] != "off":
-        isv = _debias(isv, sig, opts["noise"])
-    imin = np.maximum(ic - isv, 0.0)
 
     # 1. coherent polarization: Stokes components smoothed over a few pixels (demosaicing and noise
     #    leave polarization of alternating sign that this cancels; a highlight's is coherent); their
@@ -195,6 +191,14 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     s2 = np.where(safe, uu / np.where(safe, nn, 1), 0.0)[..., None]
     amp = qs * c2 + us * s2                                 # (H, W, 3) signed
     amp_px = q * c2 + u * s2                                # the same, unsmoothed (the pixel's own colours)
+    # the polarized amplitude with the noise's bias removed: unbiased along the axis where the smoothed
+    # amplitude fixes it, shrunk by the noise elsewhere (_polarization_noise._axis_debias)
+    if opts["noise"] == "off":
+        isv = np.hypot(q, u)
+    else:
+        gk = cv2.getGaussianKernel(k_small, 0)
+        isv = _axis_debias(q, u, c2, s2, amp, sig, float(np.sqrt(((gk @ gk.T) ** 2).sum())), opts["noise"])
+    imin = np.maximum(ic - isv, 0.0)
     # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
     # colour demosaicing's polarization errors differ between channels and partly cancel in it
     a_coh = (nn / 3.0).astype(np.float32)

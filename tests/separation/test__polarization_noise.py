@@ -1,10 +1,11 @@
-"""polcam.separation._polarization_noise: the garrotes that shrink what noise explains."""
+"""polcam.separation._polarization_noise: the garrotes that shrink what noise explains, and the axis that spares a coherent amplitude."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
-from polcam.separation._polarization_noise import _KSIG, _prior_removal
+from polcam.separation._polarization_noise import _KSIG, _axis_debias, _debias, _prior_removal
 
 
 def test_colour_prior_removal_is_shrunk_by_the_noise():
@@ -24,3 +25,51 @@ def test_colour_prior_removal_is_shrunk_by_the_noise():
     sf = diffuse + rng.normal(0, 0.05, diffuse.shape).astype(np.float32)
     out = _prior_removal(diffuse, sf, sig)
     assert np.all(out >= 0) and np.all(out <= diffuse - np.minimum(sf, diffuse) + 1e-7)
+
+
+def _noisy_stokes(amplitude: float, sigma: float, shape=(200, 200, 3), seed: int = 0):
+    """q, u of a coherent polarization (AoLP 30 degrees) of ``amplitude`` with Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    two_phi = np.deg2rad(60.0)
+    q = (amplitude * np.cos(two_phi) + rng.normal(0, sigma, shape)).astype(np.float32)
+    u = (amplitude * np.sin(two_phi) + rng.normal(0, sigma, shape)).astype(np.float32)
+    return q, u
+
+
+def _smoothed_axis(q, u, k=3):
+    qs, us = cv2.GaussianBlur(q, (k, k), 0), cv2.GaussianBlur(u, (k, k), 0)
+    qq, uu = qs.sum(axis=-1), us.sum(axis=-1)
+    nn = np.hypot(qq, uu)
+    c2, s2 = (qq / nn)[..., None], (uu / nn)[..., None]
+    gk = cv2.getGaussianKernel(k, 0)
+    return c2, s2, qs * c2 + us * s2, float(np.sqrt(((gk @ gk.T) ** 2).sum()))
+
+
+def test_axis_debias_keeps_a_coherent_amplitude_unbiased():
+    # a coherent polarization of five noise deviations: along the known axis the amplitude has
+    # zero-mean noise, so its mean is the planted one; the plain garrote shrinks it by ~_KSIG^2/5
+    sigma, amp = 0.002, 0.010
+    q, u = _noisy_stokes(amp, sigma)
+    sig = np.full(q.shape, sigma, np.float32)
+    c2, s2, smoothed, red = _smoothed_axis(q, u)
+    est = _axis_debias(q, u, c2, s2, smoothed, sig, red, "shrink")
+    assert abs(float(est.mean()) / amp - 1.0) < 0.03
+    shrunk = _debias(np.hypot(q, u), sig, "shrink")
+    assert float(shrunk.mean()) / amp < 0.9                 # what the axis saves
+
+
+def test_axis_debias_leaves_noise_shrunk():
+    # no polarization at all: the axis is noise, and the amplitude is debiased as before (mostly 0),
+    # far below the noise's own mean amplitude sigma sqrt(pi / 2)
+    sigma = 0.002
+    q, u = _noisy_stokes(0.0, sigma, seed=1)
+    sig = np.full(q.shape, sigma, np.float32)
+    c2, s2, smoothed, red = _smoothed_axis(q, u)
+    est = _axis_debias(q, u, c2, s2, smoothed, sig, red, "shrink")
+    raw = np.hypot(q, u)
+    assert float(est.mean()) < 0.25 * float(raw.mean())
+    assert np.all(est >= 0) and np.all(est <= raw + 1e-7)
+    # and where the axis is known the orthogonal part, noise, is debiased as one component
+    rice = _axis_debias(q, u, c2, s2, np.full_like(q, 1.0), sig, red, "rice")
+    par = q * c2 + u * s2
+    assert np.allclose(rice, np.hypot(par, np.sqrt(np.maximum((u * c2 - q * s2) ** 2 - sigma**2, 0))), atol=1e-7)
