@@ -17,7 +17,11 @@ and of the brightest highlights (docs/algorithm.md, polarized-residual).
 
 1. with a calibration's per-colour efficiency: divides ``Isv`` by it and takes
    the polarized light's colour;
-2. without one: compares the polarized light's colour with the brightest
+2. without one, when the polarized light's colour is within ``WHITE_Z``
+   standard errors of white (weak polarization, as of specular light near
+   normal incidence, or few pixels), keeps the camera's white balance: there is
+   no evidence against it (:func:`_white_distance`);
+3. otherwise compares the polarized light's colour with the brightest
    unsaturated, polarized pixels' own colour (:func:`highlight_colour`: at a
    strong highlight the specular term dominates the pixel).  When the two
    chromaticities agree within ``tolerance``, or the highlights are further
@@ -41,6 +45,9 @@ __all__ = ["IlluminantEstimate", "polarized_colour", "highlight_colour", "estima
 
 #: Chromaticity distance under which the polarized light's colour is trusted.
 TOLERANCE = 0.04
+#: Standard errors from white under which the polarized light's colour is noise: the camera's white
+#: balance is kept (:func:`estimate_illuminant`).
+WHITE_Z = 3.0
 _SATURATED = 0.98
 #: Chromaticity distance from the surface's own colour over which polarized light counts in full
 #: as the illuminant's (:func:`projected_chromaticity`'s ``own_colour``).
@@ -58,7 +65,8 @@ class IlluminantEstimate(NamedTuple):
         (3,) float64 in (0, 1], largest 1: per-colour polarizer efficiency
         (given, implied, or ones).
     source
-        ``"calibration"``, ``"polarized"`` or ``"highlights"``: what the colour came from.
+        ``"calibration"``, ``"white balance"``, ``"polarized"`` or ``"highlights"``: what the colour
+        came from.
     polarized, highlights
         (3,) float64 mean 1: the two measured colours (``highlights`` NaN when
         there were no usable highlight pixels).
@@ -183,8 +191,13 @@ def estimate_illuminant(stack: np.ndarray, *, efficiency: object = None,
         eff = _check_efficiency(efficiency)
         pol = polarized_colour(stack, efficiency=eff)
         return IlluminantEstimate(pol, eff / eff.max(), "calibration", pol, highlight_colour(stack))
-    pol = polarized_colour(stack)
+    terms, ok = _projection_terms(_checked_stack(stack), None, OWN_COLOUR)
+    pol = _unit_mean(_total_chromaticity(terms, ok, 5.0))
     hi = highlight_colour(stack)
+    if _white_distance(terms, ok) < WHITE_Z:
+        # the polarized light's colour is within its own noise of white: no evidence against the
+        # camera's white balance (the weak polarization of near-normal specular light, a small image)
+        return IlluminantEstimate(np.ones(3), np.ones(3), "white balance", pol, hi)
     neutral = np.full(3, 1.0 / 3.0)
     if (not np.all(np.isfinite(hi)) or np.linalg.norm(_chroma(pol) - _chroma(hi)) <= tolerance
             or np.linalg.norm(_chroma(hi) - neutral) >= np.linalg.norm(_chroma(pol) - neutral)):
@@ -238,6 +251,16 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
     numpy.ndarray
         (3,) chromaticity summing to 1 (white = 1/3 each).
     """
+    terms, ok = _projection_terms(stack, efficiency, own_colour)
+    return _total_chromaticity(terms, ok, significance)
+
+
+def _projection_terms(stack: Any, efficiency: Any, own_colour: float | None) -> tuple[Any, Any]:
+    """Per-pixel terms ``v_c(p) . n(p)`` ((H, W, 3) float64) and the unsaturated pixels ((H, W) bool).
+
+    :func:`projected_chromaticity` gives the formula; numpy or torch in, the same out (numpy
+    when ``own_colour`` weights them).
+    """
     xp = namespace(stack)
     x = xp.astype(stack, xp.float64)
     v = xp.stack([x[0] - x[2], x[1] - x[3]], axis=-1)          # (H, W, 3, 2)
@@ -251,7 +274,12 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
     ok = xp.amax(xp.amax(x, axis=0), axis=-1) < 0.98
     if own_colour is not None:
         terms, ok = _own_colour_weighted(xp.to_numpy(terms), xp.to_numpy(x), xp.to_numpy(ok), float(own_colour))
-        xp = namespace(terms)
+    return terms, ok
+
+
+def _total_chromaticity(terms: Any, ok: Any, significance: float) -> np.ndarray:
+    """Chromaticity of the summed terms over ``ok``; white when not significant (projected_chromaticity)."""
+    xp = namespace(terms)
     t = terms[ok]
     if t.shape[0] == 0:
         return np.full(3, 1 / 3)
@@ -260,6 +288,36 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
     if total.sum() <= significance * noise or np.any(total <= 0):
         return np.full(3, 1 / 3)
     return total / total.sum()
+
+
+def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int = 8) -> float:
+    """How many standard errors the terms' chromaticity lies from white (a Mahalanobis distance).
+
+    The chromaticity ``c = T / sum(T)`` of the total ``T`` of the terms ((H, W, 3), over ``ok``)
+    is a ratio estimate; its covariance is estimated from ``block`` x ``block`` sums ``b`` (nearly
+    independent: a term uses its 8 neighbours, demosaicing correlates a few pixels), as
+    ``sum_b r_b r_b^T / sum(T)^2`` with ``r_b = b - c sum(b)`` (the delta method for a ratio), and
+    the distance of ``c`` from (1/3, 1/3, 1/3) is measured in the chromaticity plane.  Returns
+    ``inf`` for a significant colour with no measurable spread (a noiseless stack), 0 when the
+    terms sum to nothing positive.
+    """
+    t = np.where(np.asarray(ok)[..., None], np.asarray(terms, np.float64), 0.0)
+    total = t.sum(axis=(0, 1))
+    s = float(total.sum())
+    if s <= 0:
+        return 0.0
+    c = total / s
+    h, w = t.shape[:2]
+    hb, wb = max(h // block, 1), max(w // block, 1)
+    bh, bw = h // hb, w // wb
+    b = t[:hb * bh, :wb * bw].reshape(hb, bh, wb, bw, 3).sum(axis=(1, 3)).reshape(-1, 3)
+    r = b - np.outer(b.sum(axis=1), c)
+    basis = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.array([[np.sqrt(2.0)], [np.sqrt(6.0)]])
+    d = basis @ (c - 1.0 / 3.0)
+    cov = basis @ (r.T @ r) @ basis.T / (s * s)
+    if np.linalg.det(cov) <= 1e-30 * max(float(np.trace(cov)) ** 2, 1e-300):
+        return float("inf") if float(d @ d) > 1e-24 else 0.0
+    return float(np.sqrt(d @ np.linalg.solve(cov, d)))
 
 
 def _own_colour_weighted(terms: np.ndarray, x: np.ndarray, ok: np.ndarray,
