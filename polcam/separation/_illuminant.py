@@ -290,14 +290,17 @@ def _total_chromaticity(terms: Any, ok: Any, significance: float) -> np.ndarray:
     return total / total.sum()
 
 
-def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int = 8) -> float:
+def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int | None = None) -> float:
     """How many standard errors the terms' chromaticity lies from white (a Mahalanobis distance).
 
     The chromaticity ``c = T / sum(T)`` of the total ``T`` of the terms ((H, W, 3), over ``ok``)
     is a ratio estimate; its covariance is estimated from ``block`` x ``block`` sums ``b`` (nearly
     independent: a term uses its 8 neighbours, demosaicing correlates a few pixels), as
     ``sum_b r_b r_b^T / sum(T)^2`` with ``r_b = b - c sum(b)`` (the delta method for a ratio), and
-    the distance of ``c`` from (1/3, 1/3, 1/3) is measured in the chromaticity plane.  Returns
+    the distance of ``c`` from (1/3, 1/3, 1/3) is measured in the chromaticity plane.  ``block``
+    (None: 8, smaller on small images so that there are at least 400 blocks: the inverse of a
+    covariance estimated from few blocks inflates the distance, a 96 x 96 image in 8 x 8 blocks
+    by half in its mean square) sets the blocks' side.  Returns
     ``inf`` for a significant colour with no measurable spread (a noiseless stack), 0 when the
     terms sum to nothing positive.
     """
@@ -308,6 +311,8 @@ def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int = 8) -> float:
         return 0.0
     c = total / s
     h, w = t.shape[:2]
+    if block is None:
+        block = int(min(8, max(2, np.sqrt(h * w / 400.0))))
     hb, wb = max(h // block, 1), max(w // block, 1)
     bh, bw = h // hb, w // wb
     b = t[:hb * bh, :wb * bw].reshape(hb, bh, wb, bw, 3).sum(axis=(1, 3)).reshape(-1, 3)

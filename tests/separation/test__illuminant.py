@@ -126,3 +126,47 @@ def test_bad_efficiency(bad):
 def test_bad_stack():
     with pytest.raises(MethodError, match=r"\(4, H, W, 3\)"):
         estimate_illuminant(np.zeros((4, 8, 8)))
+
+
+def _weak_highlights(gamma, seed, *, rho=0.08, sigma=0.004):
+    """A red matte surface with weakly polarized highlights of colour ``gamma`` and Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    h, w = 96, 96
+    yy, xx = np.mgrid[:h, :w]
+    s = sum(0.25 * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / 40.0) for cy, cx in ((30, 30), (60, 70), (25, 75)))
+    spec = s[..., None] * np.asarray(gamma, float)
+    st = synthesize(spec, rho * spec, np.full((h, w, 3), 0.7)) + np.array([0.4, 0.15, 0.1])
+    return st + rng.normal(0.0, sigma, st.shape)
+
+
+def test_white_distance_is_in_standard_errors():
+    # under white light the polarized colour's distance from white, in its estimated standard
+    # errors, is a chi with 2 degrees of freedom: E[z^2] = 2, P(z > 3) = 1.1 % (2 of these 40 seeds)
+    from polcam.separation._illuminant import OWN_COLOUR, _projection_terms, _white_distance
+
+    z = np.array([_white_distance(*_projection_terms(_weak_highlights((1, 1, 1), sd), None, OWN_COLOUR))
+                  for sd in range(40)])
+    assert 1.4 < float(np.mean(z * z)) < 2.8
+    assert int(np.sum(z > 3.0)) <= 3                            # 0.44 expected of 40
+    # a tinted light with the same weak polarization is many standard errors from white
+    zt = _white_distance(*_projection_terms(_weak_highlights((1.3, 1.0, 0.7), 0), None, OWN_COLOUR))
+    assert zt > 10
+
+
+def test_weak_evidence_keeps_the_white_balance():
+    # weakly polarized highlights under white light: the polarized colour alone errs by the noise,
+    # and is not significantly off white, so the camera's white balance is kept exactly
+    errs = []
+    for sd in range(6):
+        st = _weak_highlights((1, 1, 1), sd)
+        est = estimate_illuminant(st)
+        errs.append(float(np.abs(est.polarized - 1.0).max()))
+        if est.source == "white balance":
+            np.testing.assert_allclose(est.colour, 1.0)
+    assert max(errs) > 0.01                                     # what the rule saves
+    assert sum(estimate_illuminant(_weak_highlights((1, 1, 1), sd)).source == "white balance" for sd in range(6)) >= 5
+    # the same scene under a tinted light: the evidence is strong, the light recovered
+    g = np.array([1.3, 1.0, 0.7])
+    est = estimate_illuminant(_weak_highlights(g, 0))
+    assert est.source == "polarized"
+    np.testing.assert_allclose(est.colour, g / g.mean(), atol=0.03)
