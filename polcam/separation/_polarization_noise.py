@@ -16,6 +16,9 @@ from polcam.separation._illuminant import _SATURATED
 
 #: Noise deviations at which the non-negative garrote of the polarized amplitude (``noise="shrink"``) sets in.
 _KSIG = 2.5
+#: Deviations of its own noise at which a smoothed quantity is coherent signal, not noise: the amplitude
+#: that fixes the polarization axis (:func:`_axis_debias`), the colour prior's removal (:func:`_prior_removal`).
+_COHERENT_KSIG = 4.0
 
 
 def _stokes_noise(stack: np.ndarray, ic: np.ndarray) -> np.ndarray:
@@ -84,18 +87,33 @@ def _garrote(x2: np.ndarray, var: np.ndarray) -> np.ndarray:
     return np.clip(1.0 - (_KSIG * _KSIG) * var / np.maximum(x2, 1e-12), 0.0, 1.0)
 
 
-def _prior_removal(diffuse: np.ndarray, sf: np.ndarray, sig: np.ndarray) -> np.ndarray:
+def _prior_removal(diffuse: np.ndarray, sf: np.ndarray, sig: np.ndarray, *, smooth: int | None = None) -> np.ndarray:
     """What the colour prior removes from ``diffuse``, shrunk by the noise of Ic.
 
     ``diffuse`` and ``sf`` (the prior's specular-free estimate) are (H, W, 3); ``sig`` is the
     deviation of q and u per pixel and channel, (H, W, 3).  The removal ``diffuse - min(sf, diffuse)``
     is scaled by a garrote at ``_KSIG`` deviations of Ic's noise over the three channels
     (``var Ic = var q / 2``): on a noisy stack the specular-free estimate scatters below the diffuse by
-    the noise alone.  Returns (H, W, 3) float32 >= 0.
+    the noise alone.  With ``smooth`` (an odd Gaussian kernel side), the removal is kept whole where
+    its Gaussian-smoothed value exceeds ``_COHERENT_KSIG`` of its own deviations (a coherent
+    highlight's, which the garrote would shrink by ``_KSIG^2 var / removal``: a quarter at five
+    deviations).  Returns (H, W, 3) float32 >= 0.
     """
     delta = diffuse - np.minimum(sf, diffuse)
     dn2 = (delta * delta).sum(axis=-1, keepdims=True)
-    return (delta * _garrote(dn2, 0.5 * (sig * sig).sum(axis=-1, keepdims=True))).astype(np.float32)
+    var = 0.5 * (sig * sig).sum(axis=-1, keepdims=True)
+    out = delta * _garrote(dn2, var)
+    if smooth is not None:
+        db = cv2.GaussianBlur(delta, (smooth, smooth), 0)
+        coherent = (db * db).sum(axis=-1, keepdims=True) > (_COHERENT_KSIG * _reduction(smooth)) ** 2 * var
+        out = np.where(coherent, delta, out)
+    return out.astype(np.float32)
+
+
+def _reduction(side: int) -> float:
+    """Factor by which a ``side`` x ``side`` Gaussian blur (OpenCV's default sigma) reduces independent noise."""
+    k = cv2.getGaussianKernel(side, 0)
+    return float(np.sqrt(((k @ k.T) ** 2).sum()))
 
 
 def _debias(isv: np.ndarray, sig: np.ndarray, how: str, *, components: int = 2) -> np.ndarray:
@@ -113,9 +131,6 @@ def _debias(isv: np.ndarray, sig: np.ndarray, how: str, *, components: int = 2) 
     raise MethodError(f"polarized-residual: noise={how!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
 
 
-#: Deviations of its own noise at which a smoothed amplitude fixes the polarization axis (:func:`_axis_debias`).
-_AXIS_KSIG = 4.0
-
 
 def _axis_debias(q: np.ndarray, u: np.ndarray, c2: np.ndarray, s2: np.ndarray, smoothed: np.ndarray,
                  sig: np.ndarray, reduction: float, how: str) -> np.ndarray:
@@ -124,9 +139,9 @@ def _axis_debias(q: np.ndarray, u: np.ndarray, c2: np.ndarray, s2: np.ndarray, s
     ``q``, ``u`` (H, W, C) are the Stokes components, ``(c2, s2)`` (H, W, 1) the unit polarization
     axis of the smoothed components, ``smoothed`` (H, W, C) the smoothed signed amplitude along it,
     ``sig`` (H, W, C) the deviation of q and u, and ``reduction`` the factor by which smoothing
-    reduced it (the smoothing kernel's root sum of squared weights).
+    reduced it (the smoothing kernel's root sum of squared weights, :func:`_reduction`).
 
-    Where ``|smoothed|`` exceeds ``_AXIS_KSIG`` of its own deviations (``reduction sig``), the
+    Where ``|smoothed|`` exceeds ``_COHERENT_KSIG`` of its own deviations (``reduction sig``), the
     axis is signal, not noise: the projection ``par = q c2 + u s2`` has zero-mean noise, so
     ``|par|`` is kept as it is (a garrote would shrink a true amplitude ``x`` by
     ``_KSIG^2 sig^2 / x``: a fifth of it at five deviations), and only the orthogonal part, noise
@@ -135,6 +150,6 @@ def _axis_debias(q: np.ndarray, u: np.ndarray, c2: np.ndarray, s2: np.ndarray, s
     """
     par = q * c2 + u * s2
     orth = u * c2 - q * s2
-    axis = np.abs(smoothed) > _AXIS_KSIG * reduction * sig
+    axis = np.abs(smoothed) > _COHERENT_KSIG * reduction * sig
     known = np.hypot(par, _debias(np.abs(orth), sig, how, components=1))
     return np.where(axis, known, _debias(np.hypot(q, u), sig, how)).astype(np.float32)

@@ -40,7 +40,7 @@ import numpy as np
 
 from polcam.errors import MethodError
 from polcam.separation._illuminant import _SATURATED, estimate_illuminant
-from polcam.separation._polarization_noise import _axis_debias, _prior_removal, _stokes_noise
+from polcam.separation._polarization_noise import _axis_debias, _prior_removal, _reduction, _stokes_noise
 from polcam.separation._registry import register
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "DEFAULTS"]
@@ -196,8 +196,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     if opts["noise"] == "off":
         isv = np.hypot(q, u)
     else:
-        gk = cv2.getGaussianKernel(k_small, 0)
-        isv = _axis_debias(q, u, c2, s2, amp, sig, float(np.sqrt(((gk @ gk.T) ** 2).sum())), opts["noise"])
+        isv = _axis_debias(q, u, c2, s2, amp, sig, _reduction(k_small), opts["noise"])
     imin = np.maximum(ic - isv, 0.0)
     # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
     # colour demosaicing's polarization errors differ between channels and partly cancel in it
@@ -348,7 +347,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
                 near = cv2.blur(gate.astype(np.float32), (k_ctx, k_ctx))
                 wgt = wgt * (1.0 - near * (1.0 - np.clip(k_loc / _PRIOR_K, 0.0, 1.0)))
             wgt = wgt[..., None]
-            diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig)
+            diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig,
+                                                     smooth=k_small)
     # saturated pixels (a channel at the white level in all four angles): that channel's polarization
     # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
     # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
