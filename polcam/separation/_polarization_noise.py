@@ -131,7 +131,6 @@ def _debias(isv: np.ndarray, sig: np.ndarray, how: str, *, components: int = 2) 
     raise MethodError(f"polarized-residual: noise={how!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
 
 
-
 def _axis_debias(q: np.ndarray, u: np.ndarray, c2: np.ndarray, s2: np.ndarray, smoothed: np.ndarray,
                  sig: np.ndarray, reduction: float, how: str) -> np.ndarray:
     """The polarized amplitude per pixel and channel, unbiased where the polarization axis is known.
