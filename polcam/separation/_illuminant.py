@@ -290,6 +290,11 @@ def _total_chromaticity(terms: Any, ok: Any, significance: float) -> np.ndarray:
     return total / total.sum()
 
 
+def _plane_basis() -> np.ndarray:
+    """Two orthonormal vectors spanning the chromaticity plane (sum of components 0), (2, 3) float64."""
+    return np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.array([[np.sqrt(2.0)], [np.sqrt(6.0)]])
+
+
 def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int | None = None) -> float:
     """How many standard errors the terms' chromaticity lies from white (a Mahalanobis distance).
 
@@ -317,7 +322,7 @@ def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int | None = None)
     bh, bw = h // hb, w // wb
     b = t[:hb * bh, :wb * bw].reshape(hb, bh, wb, bw, 3).sum(axis=(1, 3)).reshape(-1, 3)
     r = b - np.outer(b.sum(axis=1), c)
-    basis = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.array([[np.sqrt(2.0)], [np.sqrt(6.0)]])
+    basis = _plane_basis()
     d = basis @ (c - 1.0 / 3.0)
     cov = basis @ (r.T @ r) @ basis.T / (s * s)
     if np.linalg.det(cov) <= 1e-30 * max(float(np.trace(cov)) ** 2, 1e-300):

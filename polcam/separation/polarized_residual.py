@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 
 from polcam.errors import MethodError
-from polcam.separation._illuminant import _SATURATED, estimate_illuminant
+from polcam.separation._illuminant import _SATURATED, _plane_basis, estimate_illuminant
 from polcam.separation._polarization_noise import _axis_debias, _prior_removal, _reduction, _stokes_noise
 from polcam.separation._registry import register
 
@@ -101,16 +101,9 @@ def _check(opts: dict[str, Any]) -> None:
             raise MethodError(f"polarized-residual: illuminant={g!r}: expected three positive numbers (R, G, B)")
 
 
-
-
 def _odd(n: float) -> int:
     k = max(int(round(n)), 1)
     return k if k % 2 else k + 1
-
-
-def _plane_basis() -> np.ndarray:
-    """Two orthonormal vectors spanning the chromaticity plane (sum of components 0)."""
-    return np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.array([[np.sqrt(2.0)], [np.sqrt(6.0)]])
 
 
 @register("polarized-residual", kind="stack", mono=True, reference=REFERENCE, options=tuple(DEFAULTS))
