@@ -80,8 +80,6 @@ def _binned_spread(level: np.ndarray, absres: np.ndarray, valid: np.ndarray, bin
     return np.interp(level, centres, np.maximum.accumulate(np.asarray(sig))).astype(np.float32)
 
 
-
-
 def _garrote(x2: np.ndarray, var: np.ndarray) -> np.ndarray:
     """Non-negative garrote factor ``clip(1 - _KSIG^2 var / x2, 0, 1)`` for a value of square ``x2``."""
     return np.clip(1.0 - (_KSIG * _KSIG) * var / np.maximum(x2, 1e-12), 0.0, 1.0)

@@ -40,7 +40,13 @@ import numpy as np
 
 from polcam.errors import MethodError
 from polcam.separation._illuminant import _SATURATED, _plane_basis, estimate_illuminant
-from polcam.separation._polarization_noise import _axis_debias, _prior_removal, _reduction, _stokes_noise
+from polcam.separation._polarization_noise import (
+    _COHERENT_KSIG,
+    _axis_debias,
+    _prior_removal,
+    _reduction,
+    _stokes_noise,
+)
 from polcam.separation._registry import register
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "DEFAULTS"]
@@ -74,6 +80,9 @@ _PRIOR_K = 0.5
 #: Largest degree of polarization of diffuse light kept as diffuse (Atkinson & Hancock 2006, Fresnel
 #: transmission: ~0.53 at grazing view for n = 1.8, below 0.4 short of 80 degrees).
 _MAX_DIFFUSE_DOLP = 0.5
+#: A polarized diffuse part is accepted only where the two-colour fit ``alpha G + beta e`` leaves less than
+#: this share of what G alone leaves (the part off G lies along the pixel's body colour).
+_DIFFUSE_FIT = 0.3
 
 
 def _check(opts: dict[str, Any]) -> None:
@@ -220,8 +229,14 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         dsafe = np.where(well, det, 1.0)
         al = (ee * ga - ge * ea) / dsafe
         be = (gg * ea - ge * ga) / dsafe
-        # significant: beyond five times the typical misfit and 3 % of the pixel's intensity
-        sig_off = off > 5.0 * noise + np.maximum(2.0 / 255, 0.03 * np.linalg.norm(ic, axis=-1))
+        # significant: beyond five times the typical misfit, 1/255 and 1 % of the pixel's intensity
+        sig_off = off > 5.0 * noise + np.maximum(1.0 / 255, 0.01 * np.linalg.norm(ic, axis=-1))
+        # and explained: what G leaves of the pixel's amplitudes lies along its own body colour e (the
+        # two-colour fit leaves under _DIFFUSE_FIT of it); demosaicing's false polarization (one
+        # channel's interpolation error, a neighbour's colour at an edge) points elsewhere
+        off_px = np.linalg.norm(amp_px - (ga / gg)[..., None] * g, axis=-1)
+        misfit = np.linalg.norm(amp_px - al[..., None] * g - be[..., None] * e, axis=-1)
+        sig_off &= misfit < _DIFFUSE_FIT * off_px
         # also where the diffuse colour's term dominates the amplitudes (a polarized diffuse part with
         # little or no specular light, e.g. near occluding contours): only a G term of the opposite
         # sign (perpendicular AoLP) is specular there, so the polarized diffuse light is kept
@@ -243,6 +258,17 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     resid = np.clip(ic - a[..., None] * g, 0.0, ub)         # polarized specular light removed
 
     # 3. where coherent polarized specular light is (highlights)
+    if opts["diffuse_polarization"]:
+        # only the specular part marks a highlight: where the smoothed amplitudes' diffuse-colour term
+        # dominates and what G leaves of them is beyond _COHERENT_KSIG of its noise (a surface's own
+        # coherent polarized light, as near occluding contours), the G term |alpha| alone counts
+        gs = amp @ g
+        es = (amp * e).sum(axis=-1)
+        al_s = (ee * gs - ge * es) / dsafe
+        be_s = (gg * es - ge * gs) / dsafe
+        own = (well & (np.abs(be_s) * np.sqrt(ee) > np.abs(al_s) * np.sqrt(gg))
+               & (off > _COHERENT_KSIG * _reduction(k_small) * np.sqrt((sig * sig).sum(axis=-1))))
+        a_coh = np.where(own, np.minimum(np.abs(al_s), a_coh), a_coh).astype(np.float32)
     lum = ic.mean(axis=-1)
     # the floor of the coherent polarized amplitude that noise leaves everywhere
     floor = float(np.median(a_coh))

@@ -354,3 +354,46 @@ def test_no_diffuse_polarization_beyond_the_physical_bound_near_brewster(monkeyp
     monkeypatch.setattr(pr, "_MAX_DIFFUSE_DOLP", 1e9)
     unbounded = score(polcam.separate(r.stack, method="polarized-residual").diffuse, r.diffuse, r.mask)[2]
     assert bounded > unbounded + 0.2
+
+
+def test_weakly_polarized_diffuse_beside_a_highlight_is_kept():
+    # an orange surface with a partly polarized white highlight on one side and, apart from it, a band
+    # whose diffuse light is weakly polarized (DoLP 0.03, perpendicular to the specular's): the band's
+    # polarized light has the surface's colour, so it stays in the diffuse (fifth round: before, only
+    # a misfit of 3 % of the intensity was accepted, and the band lost its polarized light)
+    h, w = 48, 64
+    d = np.broadcast_to(np.array([0.5, 0.25, 0.15]), (h, w, 3)).copy()
+    spec = 0.3 * _bump(h, w, 24, 16, 4)
+    band = np.zeros((h, w), bool)
+    band[:, 44:56] = True
+    st = _stack(d, spec, (1, 1, 1), rho_s=0.3, phi_s=0.4)
+    st = st + synthesize(np.zeros_like(d), np.where(band, 0.03, 0.0)[..., None] * d,
+                         np.full(d.shape, 0.4 + np.pi / 2))
+    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    amplitude = 0.03 * d[band]
+    inner = np.zeros((h, w), bool)
+    inner[:, 46:54] = True                     # away from the band's edges, where the smoothed axis mixes
+    assert np.abs(res.diffuse[inner] - d[inner]).max() < 1e-3
+    # imin removes it all
+    err_imin = np.abs(polcam.separate(st, method="imin").diffuse[band] - d[band])
+    assert err_imin.mean() > 0.9 * amplitude.mean()
+    # and the highlight's unpolarized specular light is still removed
+    hl = spec > 0.05
+    assert (np.abs(res.diffuse[hl] - d[hl]).mean()
+            < 0.4 * np.abs(polcam.separate(st, method="imin").diffuse[hl] - d[hl]).mean())
+
+
+@pytest.mark.parametrize("channel", [1, 2])
+def test_polarization_off_the_body_colour_is_not_kept(channel):
+    # one channel's polarization (green or blue) on the red patch: neither the illuminant's colour nor
+    # the surface's, as demosaicing's false polarization at a colour edge; it is not kept as a polarized
+    # diffuse part, so the diffuse stays under Imin there
+    d = _scene()
+    st = _stack(d, np.zeros(d.shape[:2]), (1, 1, 1), rho_s=0.0, phi_s=0.3)
+    pol = np.zeros_like(d)
+    pol[8:24, 4:20, channel] = 0.03
+    st = st + synthesize(np.zeros_like(d), pol, np.full(d.shape, 0.3))
+    ic = st.mean(axis=0)
+    imin = ic - np.hypot(0.5 * (st[0] - st[2]), 0.5 * (st[1] - st[3]))
+    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    assert float((res.diffuse - imin)[8:24, 4:20].max()) < 1e-4
