@@ -62,7 +62,7 @@ DEFAULTS: dict[str, Any] = {
     "illuminant": None,          # None: estimate; or an RGB triple
     "efficiency": None,          # per-colour polarizer efficiency from a calibration, (3,) in (0, 1]
     "diffuse_polarization": True,
-    "context": 0.08,             # neighbourhood side, as a share of the image's larger side
+    "context": 0.12,             # neighbourhood side, as a share of the image's larger side
     "hue_bins": 24,
     "min_saturation": 0.04,      # below: achromatic (no hue)
     "polarized_threshold": 0.02,  # polarized specular / intensity that marks a highlight neighbourhood
@@ -151,6 +151,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         raise MethodError(f"polarized-residual: stack of shape {s.shape}: expected (4, H, W, 3) or (4, H, W)")
     h, w = s.shape[1:3]
     measured = s.mean(axis=0)
+    clipped_any = (s >= _SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
     if opts["declip"]:
         s = _declipped(s)
     ic = s.mean(axis=0)
@@ -320,7 +321,9 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     t = float(opts["polarized_threshold"])
     dop = a_eff * float(g.mean()) / np.maximum(lum_s, 1e-6)
     gate = np.clip((dop - t) / t, 0.0, 1.0)
-    rel = coloured & spec & (a_pix > 1.0 / 255)
+    # not where a sample is clipped: that pixel's colour (and so its specular share) is not measured, and
+    # a clipped channel makes the residual look paler, which overstated k
+    rel = coloured & spec & (a_pix > 1.0 / 255) & ~clipped_any
     num_p = np.where(rel, np.minimum(r_col, float(opts["max_ratio"]) * a_pix), 0.0).astype(np.float32)
     den_p = np.where(rel, a_pix, 0.0).astype(np.float32)
     if int(rel.sum()) >= 20:
@@ -350,9 +353,11 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
             sf = np.asarray(out[0] if isinstance(out, tuple) else out, np.float32) * peak * g
             sf = np.clip(sf, 0.0, resid)
             ms = float(opts["min_saturation"])
-            # the saturation of the locally averaged residual: colour noise (demosaicing) averages out
+            # the saturation of the locally averaged layer of step 5 (the specular light that polarization
+            # measured already removed, so a highlight's white light does not make a coloured material
+            # look achromatic): colour noise (demosaicing) averages out
             kw = _odd(3 * k_small)
-            rb = cv2.blur(resid, (kw, kw))
+            rb = cv2.blur(diffuse, (kw, kw))
             cb = rb / np.maximum(rb.sum(axis=-1, keepdims=True), 1e-6) - g / g.sum()
             sat_w = np.linalg.norm(cb, axis=-1)
             wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)
