@@ -362,7 +362,7 @@ def test_no_diffuse_polarization_beyond_the_physical_bound_near_brewster(monkeyp
 def test_weakly_polarized_diffuse_beside_a_highlight_is_kept():
     # an orange surface with a partly polarized white highlight on one side and, apart from it, a band
     # whose diffuse light is weakly polarized (DoLP 0.03, perpendicular to the specular's): the band's
-    # polarized light has the surface's colour, so it stays in the diffuse (fifth round: before, only
+    # polarized light has the surface's colour, so it stays in the diffuse (sixth round: before, only
     # a misfit of 3 % of the intensity was accepted, and the band lost its polarized light)
     h, w = 48, 64
     d = np.broadcast_to(np.array([0.5, 0.25, 0.15]), (h, w, 3)).copy()
@@ -406,7 +406,7 @@ def test_polarization_off_the_body_colour_is_not_kept(channel):
 def test_residual_ratio_on_a_wide_highlight_needs_a_context_beyond_it(rho):
     # a uniform orange surface (smooth shading) with one wide white highlight of specular DoLP rho:
     # the unpolarized / polarized ratio k = (1 - rho) / rho is measured against the body colour, which
-    # only a neighbourhood wider than the highlight sees (fifth round: the default context went 0.08 ->
+    # only a neighbourhood wider than the highlight sees (sixth round: the default context went 0.08 ->
     # 0.12 of the image side; at 0.08 a highlight of Gaussian radius 12 px on 128 px gave k half the truth)
     h = w = 128
     d = np.array([0.5, 0.3, 0.2]) * (0.6 + 0.4 * _bump(h, w, 64, 64, 60))[..., None]
