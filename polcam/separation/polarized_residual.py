@@ -210,7 +210,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     #    A = alpha G + beta e with alpha, beta of opposite signs (a diffuse part of colour e polarized
     #    perpendicular to the specular), the specular part is |alpha| G and the diffuse keeps |beta| e.
     gg = float(g @ g)
-    along = (amp @ g) / gg
+    amp_g = amp @ g
+    along = amp_g / gg
     cover = (isv / g).max(axis=-1)
     esum = imin.sum(axis=-1, keepdims=True)
     e = np.where(esum > 1e-6, imin / np.maximum(esum, 1e-6), g / g.sum())
@@ -225,11 +226,17 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         well = det > (0.2 ** 2) * gg * ee                  # e far from G's colour (sin > 0.2)
         # the decomposition from the pixel's own amplitudes: smoothing mixes the colours of neighbouring
         # pixels, which near occluding contours (where diffuse polarization is strongest) differ most
-        ga = amp_px @ g
-        ea = (amp_px * e).sum(axis=-1)
         dsafe = np.where(well, det, 1.0)
-        al = (ee * ga - ge * ea) / dsafe
-        be = (gg * ea - ge * ga) / dsafe
+
+        def fit(xg: np.ndarray, xe: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            # per pixel, least squares x = alpha G + beta e from x.G and x.e; and whether the diffuse
+            # colour's term dominates, |beta| |e| > |alpha| |G|
+            al = (ee * xg - ge * xe) / dsafe
+            be = (gg * xe - ge * xg) / dsafe
+            return al, be, np.abs(be) * np.sqrt(ee) > np.abs(al) * np.sqrt(gg)
+
+        ga = amp_px @ g
+        al, be, dom = fit(ga, (amp_px * e).sum(axis=-1))
         # significant: beyond five times the typical misfit, 1/255 and 1 % of the pixel's intensity
         sig_off = off > 5.0 * noise + np.maximum(1.0 / 255, 0.01 * np.linalg.norm(ic, axis=-1))
         # and explained: what G leaves of the pixel's amplitudes lies along its own body colour e (the
@@ -238,10 +245,9 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         off_px = np.linalg.norm(amp_px - (ga / gg)[..., None] * g, axis=-1)
         misfit = np.linalg.norm(amp_px - al[..., None] * g - be[..., None] * e, axis=-1)
         sig_off &= misfit < _DIFFUSE_FIT * off_px
-        # also where the diffuse colour's term dominates the amplitudes (a polarized diffuse part with
-        # little or no specular light, e.g. near occluding contours): only a G term of the opposite
+        # also where the diffuse colour's term dominates the amplitudes (dom: a polarized diffuse part
+        # with little or no specular light, e.g. near occluding contours): only a G term of the opposite
         # sign (perpendicular AoLP) is specular there, so the polarized diffuse light is kept
-        dom = np.abs(be) * np.sqrt(ee) > np.abs(al) * np.sqrt(gg)
         # and physically possible: a diffuse surface's degree of polarization stays below 0.5 (Atkinson &
         # Hancock 2006: at most ~0.53 at grazing view for n = 1.8); a larger |beta| e comes from a misfit
         # (opposite-signed alpha and beta cancelling each other on strongly polarized highlights)
@@ -251,6 +257,13 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         take = well & sig_off & ((al * be < 0) | dom) & plaus
         a = np.where(take, np.where(al * be < 0, np.abs(al), 0.0), a).astype(np.float32)
         b = np.where(take, np.abs(be), 0.0).astype(np.float32)
+        # for step 3, only the specular part marks a highlight: where the smoothed amplitudes' diffuse-
+        # colour term dominates and what G leaves of them is beyond _COHERENT_KSIG of its noise (a
+        # surface's own coherent polarized light, as near occluding contours), the G term |alpha| alone
+        # counts
+        al_s, _, dom_s = fit(amp_g, (amp * e).sum(axis=-1))
+        own = well & dom_s & (off > _COHERENT_KSIG * _reduction(k_small) * np.sqrt((sig * sig).sum(axis=-1)))
+        a_coh = np.where(own, np.minimum(np.abs(al_s), a_coh), a_coh).astype(np.float32)
     ub = np.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)
     # the bound is met by more of the one specular colour, not by clipping channels one by one (which
     # would give the specular layer the colours of the channels' polarization errors)
@@ -258,18 +271,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
     resid = np.clip(ic - a[..., None] * g, 0.0, ub)         # polarized specular light removed
 
-    # 3. where coherent polarized specular light is (highlights)
-    if opts["diffuse_polarization"]:
-        # only the specular part marks a highlight: where the smoothed amplitudes' diffuse-colour term
-        # dominates and what G leaves of them is beyond _COHERENT_KSIG of its noise (a surface's own
-        # coherent polarized light, as near occluding contours), the G term |alpha| alone counts
-        gs = amp @ g
-        es = (amp * e).sum(axis=-1)
-        al_s = (ee * gs - ge * es) / dsafe
-        be_s = (gg * es - ge * gs) / dsafe
-        own = (well & (np.abs(be_s) * np.sqrt(ee) > np.abs(al_s) * np.sqrt(gg))
-               & (off > _COHERENT_KSIG * _reduction(k_small) * np.sqrt((sig * sig).sum(axis=-1))))
-        a_coh = np.where(own, np.minimum(np.abs(al_s), a_coh), a_coh).astype(np.float32)
+    # 3. where coherent polarized specular light is (highlights; a_coh is specular only, step 2)
     lum = ic.mean(axis=-1)
     # the floor of the coherent polarized amplitude that noise leaves everywhere
     floor = float(np.median(a_coh))
