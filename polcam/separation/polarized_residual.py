@@ -49,7 +49,7 @@ from polcam.separation._polarization_noise import (
 )
 from polcam.separation._registry import register
 
-__all__ = ["REFERENCE", "separate_polarized_residual", "DEFAULTS"]
+__all__ = ["REFERENCE", "separate_polarized_residual", "stages", "DEFAULTS"]
 
 REFERENCE = (
     "polcam's own method; builds on L. B. Wolff & T. E. Boult, IEEE TPAMI 13(7) 1991 (polarization "
@@ -139,6 +139,39 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         ``illuminant`` (RGB, mean 1), ``illuminant_source``, ``efficiency``,
         ``residual_ratio`` (unpolarized / polarized specular light on coloured highlights).
     """
+    return _separate(stack, options, None)
+
+
+def stages(stack: np.ndarray, **options: Any) -> dict[str, np.ndarray]:
+    """The diffuse layer after each step, to see which step does what on a frame.
+
+    Parameters
+    ----------
+    stack
+        (4, H, W, 3) or (4, H, W) float in [0, 1], angles 0, 45, 90, 135.
+    **options
+        As :func:`separate_polarized_residual`.
+
+    Returns
+    -------
+    dict
+        float32 arrays of one angle image's shape, in [0, mean over angles]:
+        ``imin`` (``Ic`` less each channel's debiased polarized amplitude), and for colour stacks
+        ``polarized_removed`` (after step 2: the polarized specular light removed),
+        ``ratio_removed`` (after step 5: ``k`` times it more), ``prior_removed`` (after step 6, the
+        colour prior; before the clipped highlights' fill); and ``diffuse``, the layer
+        :func:`separate_polarized_residual` returns.  Each of the three step layers is at most the
+        one before it.
+    """
+    keep: dict[str, np.ndarray] = {}
+    diffuse, _ = _separate(stack, options, keep)
+    keep["diffuse"] = diffuse
+    return keep
+
+
+def _separate(stack: np.ndarray, options: dict[str, Any],
+              keep: dict[str, np.ndarray] | None) -> tuple[np.ndarray, dict[str, Any]]:
+    """:func:`separate_polarized_residual`; with ``keep`` (a dict), the step layers go into it."""
     unknown = set(options) - set(DEFAULTS)
     if unknown:
         raise MethodError(f"polarized-residual: unknown option(s) {', '.join(sorted(unknown))}")
@@ -146,7 +179,7 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     _check(opts)
     s = np.asarray(stack, dtype=np.float32)
     if s.ndim == 3 and s.shape[0] == 4:
-        return _mono(s, opts)
+        return _mono(s, opts, keep)
     if s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
         raise MethodError(f"polarized-residual: stack of shape {s.shape}: expected (4, H, W, 3) or (4, H, W)")
     h, w = s.shape[1:3]
@@ -270,6 +303,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     a = np.maximum(a, ((ic - ub) / g).max(axis=-1))
     a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
     resid = np.clip(ic - a[..., None] * g, 0.0, ub)         # polarized specular light removed
+    if keep is not None:
+        keep.update(imin=imin.astype(np.float32), polarized_removed=resid.astype(np.float32))
 
     # 3. where coherent polarized specular light is (highlights; a_coh is specular only, step 2)
     lum = ic.mean(axis=-1)
@@ -341,6 +376,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     r = gate * k_loc * a_pix
     r = np.minimum(r, (resid / g).min(axis=-1))             # diffuse >= 0 in every channel
     diffuse = np.clip(resid - r[..., None] * g, 0.0, ub)
+    if keep is not None:
+        keep["ratio_removed"] = diffuse.astype(np.float32)
     if opts["residual_model"] == "shen13":
         # coloured pixels: Shen & Zheng's (2013) specular-free clustering applied to the residual only,
         # in the illuminant-normalised space (where the residual specular light is white), never
@@ -375,6 +412,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
             wgt = wgt[..., None]
             diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig,
                                                      smooth=k_small)
+    if keep is not None:
+        keep["prior_removed"] = diffuse.astype(np.float32)
     # saturated pixels (a channel at the white level in all four angles): that channel's polarization
     # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
     # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
@@ -501,7 +540,8 @@ def _inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _mono(stack: np.ndarray, opts: dict[str, Any]) -> tuple[np.ndarray, dict[str, Any]]:
+def _mono(stack: np.ndarray, opts: dict[str, Any],
+          keep: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Mono stacks: remove the polarized light, then k times the coherent polarized light.
 
     Without colour, k (the unpolarized / polarized ratio of the specular light) is chosen so that the
@@ -531,6 +571,8 @@ def _mono(stack: np.ndarray, opts: dict[str, Any]) -> tuple[np.ndarray, dict[str
     a_pix = (np.minimum(a_eff, isv) * gate).astype(np.float32)
     ratio = _gradient_ratio(imin, a_pix, float(opts["max_ratio"]))
     diffuse = np.clip(imin - ratio * a_pix, 0.0, np.minimum(imin, measured))
+    if keep is not None:
+        keep["imin"] = imin.astype(np.float32)
     return diffuse.astype(np.float32), {"residual_ratio": ratio, "polarized_floor": floor}
 
 

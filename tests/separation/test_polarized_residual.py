@@ -420,3 +420,28 @@ def test_residual_ratio_on_a_wide_highlight_needs_a_context_beyond_it(rho):
     assert np.abs(wide.diffuse - d)[hl].mean() < 0.03 * err_imin
     narrow = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1), context=0.05)
     assert narrow.info["residual_ratio"] < 0.8 * k_true
+
+
+def test_stages_show_each_step():
+    from polcam.separation.polarized_residual import separate_polarized_residual, stages
+
+    d = _scene()
+    h, w = d.shape[:2]
+    spec = 0.35 * _bump(h, w, 16, 12, 3)            # highlight on the red patch, DoLP 0.5
+    st = _stack(d, spec, (1, 1, 1), rho_s=0.5, phi_s=1.0)
+    out = stages(st)
+    assert set(out) == {"imin", "polarized_removed", "ratio_removed", "prior_removed", "diffuse"}
+    final, _ = separate_polarized_residual(st)
+    np.testing.assert_array_equal(out["diffuse"], final)
+    for a, b in [("polarized_removed", "ratio_removed"), ("ratio_removed", "prior_removed")]:
+        assert np.all(out[b] <= out[a] + 1e-6), (a, b)
+    # step 2 removes the polarized half of the highlight exactly; step 5 then most of the other half
+    hl = spec > 0.1
+    unpol = d + 0.5 * spec[..., None]
+    assert np.max(np.abs(out["polarized_removed"][hl] - unpol[hl])) < 2e-3
+    assert np.abs(out["ratio_removed"] - d)[hl].mean() < 0.3 * np.abs(out["polarized_removed"] - d)[hl].mean()
+    # noise-free: imin is Ic less the polarized amplitude, here d plus the unpolarized half
+    np.testing.assert_allclose(out["imin"], unpol, atol=1e-5)
+    mono = stages(st.mean(axis=-1))
+    assert set(mono) == {"imin", "diffuse"}
+    np.testing.assert_allclose(mono["imin"], unpol.mean(axis=-1), atol=1e-5)
