@@ -155,8 +155,8 @@ def stages(stack: np.ndarray, **options: Any) -> dict[str, np.ndarray]:
     Returns
     -------
     dict
-        float32 arrays of one angle image's shape, in [0, mean over angles]:
-        ``imin`` (``Ic`` less each channel's debiased polarized amplitude), and for colour stacks
+        float32 arrays of one angle image's shape, >= 0 (and at most the mean over angles, except
+        before the last step where clipped samples were rebuilt): ``imin`` (``Ic`` less each channel's debiased polarized amplitude), and for colour stacks
         ``polarized_removed`` (after step 2: the polarized specular light removed),
         ``ratio_removed`` (after step 5: ``k`` times it more), ``prior_removed`` (after step 6, the
         colour prior; before the clipped highlights' fill); and ``diffuse``, the layer
