@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 
 from polcam.errors import MethodError
+from polcam.separation._clipping import declipped, inpaint
 from polcam.separation._illuminant import _SATURATED, _plane_basis, estimate_illuminant
 from polcam.separation._polarization_noise import (
     _COHERENT_KSIG,
@@ -186,7 +187,7 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
     measured = s.mean(axis=0)
     clipped_any = (s >= _SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
     if opts["declip"]:
-        s = _declipped(s)
+        s = declipped(s)
     ic = s.mean(axis=0)
     q = 0.5 * (s[0] - s[2])
     u = 0.5 * (s[1] - s[3])
@@ -383,13 +384,10 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
         # in the illuminant-normalised space (where the residual specular light is white), never
         # above the residual; achromatic pixels keep the polarization-decided layer above (a ramp
         # over the locally averaged residual's saturation from min_saturation to twice it)
-        from polcam.separation.shen13 import separate_shen13
-
         norm = resid / g
         peak = float(norm.max())
         if peak > 0:
-            out = separate_shen13(np.clip(norm / peak, 0.0, 1.0).astype(np.float64))
-            sf = np.asarray(out[0] if isinstance(out, tuple) else out, np.float32) * peak * g
+            sf = _specular_free(np.clip(norm / peak, 0.0, 1.0).astype(np.float64), 3 * k_small) * peak * g
             sf = np.clip(sf, 0.0, resid)
             ms = float(opts["min_saturation"])
             # the saturation of the locally averaged layer of step 5 (the specular light that polarization
@@ -434,7 +432,7 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
     if 0 < int(sat_px.sum()) < sat_px.size // 2:
         # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
         # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
-        fill = _inpaint(diffuse, sat_px)
+        fill = inpaint(diffuse, sat_px)
         t = ((diffuse - fill) @ g) / float(g @ g)
         diffuse = np.where(sat_px[..., None], np.clip(diffuse - t[..., None] * g, 0.0, ic), diffuse)
     info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
@@ -449,95 +447,38 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
     return diffuse.astype(np.float32), info
 
 
-def _declipped(stack: np.ndarray) -> np.ndarray:
-    """The stack with clipped samples rebuilt from the unclipped ones where the physics allows.
+def _specular_free(image: np.ndarray, smooth: float) -> np.ndarray:
+    """Shen & Zheng's (2013) specular-free image, its clusters' intensity ratios smoothed in the image.
 
-    ``stack`` is (4, H, W, C) float32 (angles 0, 45, 90, 135; C = 3 colours, or 1 for mono).
-    A sample at or above the white level (``_SATURATED``) holds less than the light that fell
-    on it.  Per pixel and channel:
-
-    * one clipped sample: every ideal polarizer stack has ``I0 + I90 = I45 + I135`` (both S0),
-      so the clipped one is the sum of its two neighbours' angles less the opposite one;
-    * two clipped samples: the two others give ``Ic`` and the amplitude ``A`` of
-      ``I(t) = Ic + A cos(2t - 2 phi)`` once the AoLP ``phi`` is known, taken from the pixel's
-      channels that have no clipped sample (a specular highlight's polarization is common to
-      the channels, or from the nearest unclipped pixels within 15 pixels); skipped where none
-      is found or the 2 x 2 system is ill-conditioned (|det| < 0.2).
-
-    A rebuilt value replaces the sample only when it is at least the clipped value (otherwise
-    the measurement contradicts the model and is kept).  Pixels with a channel clipped at three
-    or four angles are left as they are (the clipped highlights' fill handles them).
+    ``image`` is (H, W, 3) float64 in [0, 1]; returns (H, W, 3) float32 in [0, image].  Each
+    cluster's ratio ``Q`` (:func:`polcam.separation.shen13.cluster_ratios`, the paper's defaults) is
+    a constant of its material, but the hard clustering puts the pixels of one smoothly shaded,
+    weakly coloured material on both sides of a cluster boundary, and two ratios side by side make
+    blotches (seen on lmmse-1's pink candy).  So the ratio map is filtered with a joint bilateral
+    filter (polcam.filters; Yang, Wang & Ahuja, ECCV 2010, filter a ratio the same way) guided by
+    the image's mean over channels: spatial sigma ``smooth`` pixels, range sigma a tenth of the
+    guide's maximum, so material edges of different brightness keep their own ratios.
     """
-    s = stack.copy()
-    clipped = stack >= _SATURATED                                  # (4, H, W, C)
-    n = clipped.sum(axis=0, dtype=np.int8)
-    if not n.any():
-        return s
-    # pixels with a channel clipped at three or four angles are left whole: that channel is not
-    # measured, and the clipped highlights' fill (from the neighbours) handles them
-    n[(n >= 3).any(axis=-1)] = 0
-    # one clipped sample (sparse: only those pixels and channels are touched)
-    yy, xx, cc = np.nonzero(n == 1)
-    if yy.size:
-        v = stack[:, yy, xx, cc]                                   # (4, N)
-        k = np.argmax(clipped[:, yy, xx, cc], axis=0)
-        cols = np.arange(yy.size)
-        est = v[(k + 1) % 4, cols] + v[(k + 3) % 4, cols] - v[(k + 2) % 4, cols]
-        keep = est >= v[k, cols]
-        s[k[keep], yy[keep], xx[keep], cc[keep]] = est[keep]
-    yy, xx, cc = np.nonzero(n == 2)
-    if yy.size:
-        free = ~clipped.any(axis=0)                                # (H, W, C) channels with no clipped sample
-        qq = (0.5 * (stack[0] - stack[2]) * free).sum(axis=-1)
-        uu = (0.5 * (stack[1] - stack[3]) * free).sum(axis=-1)
-        # where no channel of the pixel is free, the AoLP of the free channels around it: the nearest of
-        # the 7 x 7, 15 x 15 and 31 x 31 neighbourhoods that has any (a highlight's AoLP varies smoothly)
-        have = free.any(axis=-1)
-        for side in (7, 15, 31):
-            if have[yy, xx].all():
-                break
-            qn = cv2.boxFilter(qq.astype(np.float32), -1, (side, side), normalize=False)
-            un = cv2.boxFilter(uu.astype(np.float32), -1, (side, side), normalize=False)
-            found = ~have & (np.hypot(qn, un) > 0)
-            qq = np.where(found, qn, qq)
-            uu = np.where(found, un, uu)
-            have = have | found
-        phi = 0.5 * np.arctan2(uu[yy, xx], qq[yy, xx])             # (N,)
-        ok = np.hypot(qq[yy, xx], uu[yy, xx]) > 0
-        angles = np.deg2rad(np.array([0.0, 45.0, 90.0, 135.0]))
-        cosk = np.cos(2 * angles[:, None] - 2 * phi[None])          # (4, N)
-        v = stack[:, yy, xx, cc]                                   # (4, N)
-        cl = clipped[:, yy, xx, cc]
-        order = np.argsort(cl, axis=0, kind="stable")              # unclipped first
-        a, b = order[0], order[1]
-        cols = np.arange(yy.size)
-        det = cosk[b, cols] - cosk[a, cols]
-        ok &= np.abs(det) >= 0.2
-        amp = (v[b, cols] - v[a, cols]) / np.where(ok, det, 1.0)
-        icx = v[a, cols] - amp * cosk[a, cols]
-        for j in (2, 3):
-            k = order[j]
-            est = icx + amp * cosk[k, cols]
-            keep = ok & (est >= v[k, cols])
-            s[k[keep], yy[keep], xx[keep], cc[keep]] = est[keep]
-    return s
+    from polcam.filters import joint_bilateral
+    from polcam.separation.shen13 import cluster_ratios, ratio_specular
 
-
-def _inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Fill ``img`` ((H, W, C) float >= 0) where ``mask`` ((H, W) bool) from its surroundings.
-
-    Telea's fast-marching method (J. Graphics Tools 9(1), 2004; OpenCV's ``INPAINT_TELEA``) per
-    channel on 16-bit values (``img`` clipped to [0, 1]), radius 3 pixels (its cost grows with the
-    radius squared: a fiftieth of the side took seconds on a full-resolution frame).
-    """
-    m = mask.astype(np.uint8)
-    radius = 3.0
-    out = np.empty_like(img, dtype=np.float32)
-    for c in range(img.shape[-1]):
-        # in 16 bits: OpenCV's float inpainting returns values outside its input's range
-        x = np.round(np.clip(img[..., c], 0.0, 1.0) * 65535.0).astype(np.uint16)
-        out[..., c] = cv2.inpaint(x, m, radius, cv2.INPAINT_TELEA).astype(np.float32) / 65535.0
-    return out
+    q_map, _ = cluster_ratios(image)
+    ok = np.isfinite(q_map)
+    if ok.any():
+        # on a grid f times coarser (f = smooth / 6, as the filter's own grid): the ratio map is
+        # piecewise constant, and the filter's cost at full resolution was a second a frame
+        h, w = ok.shape
+        f = max(1, int(smooth // 6))
+        size = (max(1, -(-w // f)), max(1, -(-h // f)))
+        area = cv2.INTER_AREA
+        wt = cv2.resize(ok.astype(np.float32), size, interpolation=area)
+        qw = cv2.resize(np.where(ok, q_map, 0.0).astype(np.float32), size, interpolation=area)
+        guide = cv2.resize(image.mean(axis=-1).astype(np.float32), size, interpolation=area)
+        q_s = joint_bilateral(qw / np.maximum(wt, 1e-12), guide, sigma_spatial=float(smooth) / f,
+                              sigma_range=0.1 * max(float(guide.max()), 1e-6), weights=wt)
+        q_s = cv2.resize(np.asarray(q_s, np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+        q_map = np.where(ok, q_s.astype(np.float64), np.nan)
+    return np.clip(image - ratio_specular(image, q_map)[..., None], 0.0, image).astype(np.float32)
 
 
 def _mono(stack: np.ndarray, opts: dict[str, Any],
@@ -553,7 +494,7 @@ def _mono(stack: np.ndarray, opts: dict[str, Any],
     h, w = s.shape[1:3]
     measured = s.mean(axis=0)
     if opts["declip"]:
-        s = _declipped(s[..., None])[..., 0]
+        s = declipped(s[..., None])[..., 0]
     ic = s.mean(axis=0)
     q = 0.5 * (s[0] - s[2])
     u = 0.5 * (s[1] - s[3])

@@ -63,7 +63,7 @@ REFERENCE = (
     "Applied Optics 52(19), 4483-4493, 2013"
 )
 
-__all__ = ["REFERENCE", "separate_shen13", "cluster_pseudo_chromaticity"]
+__all__ = ["REFERENCE", "separate_shen13", "cluster_pseudo_chromaticity", "cluster_ratios", "ratio_specular"]
 
 
 def cluster_pseudo_chromaticity(pseudo: np.ndarray, threshold: float) -> np.ndarray:
@@ -143,13 +143,38 @@ def separate_shen13(
         raise MethodError(f"shen13: chroma_threshold={chroma_threshold!r}: expected a positive number")
     if not (np.isfinite(percentile) and 0 <= percentile <= 1):
         raise MethodError(f"shen13: percentile={percentile!r}: expected a number in [0, 1]")
+    q_map, n_clusters = cluster_ratios(image, chroma_threshold=chroma_threshold, percentile=percentile)
+    return finish_diffuse(image - ratio_specular(image, q_map)[..., None], image), {"clusters": n_clusters}
+
+
+def cluster_ratios(
+    image: np.ndarray, *, chroma_threshold: float = 0.3, percentile: float = 0.5
+) -> tuple[np.ndarray, int]:
+    """Steps 1-4 of :func:`separate_shen13`: each processed pixel's cluster intensity ratio ``Q``.
+
+    Parameters
+    ----------
+    image
+        (H, W, 3) float RGB (checked by the caller).
+    chroma_threshold, percentile
+        As :func:`separate_shen13`.
+
+    Returns
+    -------
+    q_map : numpy.ndarray
+        (H, W) float64: ``Q`` of the pixel's cluster; NaN where the pixel is not processed
+        (``I_min <= mu``) or its cluster has no reliable ratio.
+    clusters : int
+        The number of clusters (0 when no pixel is processed).
+    """
     i_min = channel_min(image)
     i_max = channel_max(image)
     i_range = i_max - i_min
     mu = float(i_min.mean())
     mask = i_min > mu
+    q_map = np.full(image.shape[:2], np.nan)
     if not mask.any():
-        return image.copy(), {"clusters": 0}
+        return q_map, 0
 
     pix = image[mask]
     msf = pix - i_min[mask][:, None] + mu
@@ -158,18 +183,25 @@ def separate_shen13(
     labels = cluster_pseudo_chromaticity(pseudo, float(chroma_threshold))
     n_clusters = int(labels.max()) + 1
 
-    rmax = i_max[mask]
-    rrange = i_range[mask]
-    reliable = rrange > mu
-    ratio = safe_divide(rmax, rrange, fill=0.0)
+    reliable = i_range[mask] > mu
+    ratio = safe_divide(i_max[mask], i_range[mask], fill=0.0)
     q = np.full(n_clusters, np.nan)
     for k in range(n_clusters):
         r = ratio[(labels == k) & reliable]
         if r.size:
             rank = min(int(percentile * r.size), r.size - 1)
             q[k] = np.partition(r, rank)[rank]
-    q_pix = q[labels]
-    spec = np.where(np.isfinite(q_pix), np.maximum(rmax - np.nan_to_num(q_pix) * rrange, 0.0), 0.0)
-    diffuse = image.copy()
-    diffuse[mask] = pix - spec[:, None]
-    return finish_diffuse(diffuse, image), {"clusters": n_clusters}
+    q_map[mask] = q[labels]
+    return q_map, n_clusters
+
+
+def ratio_specular(image: np.ndarray, q_map: np.ndarray) -> np.ndarray:
+    """Step 5 of :func:`separate_shen13`: ``m_s / 3 = max(I_max - Q I_range, 0)``, 0 where ``Q`` is NaN.
+
+    ``image`` is (H, W, 3), ``q_map`` (H, W) (:func:`cluster_ratios`, or a filtered copy); returns
+    (H, W) float64.
+    """
+    i_max = channel_max(image)
+    i_range = i_max - channel_min(image)
+    ok = np.isfinite(q_map)
+    return np.where(ok, np.maximum(i_max - np.where(ok, q_map, 0.0) * i_range, 0.0), 0.0)

@@ -176,32 +176,6 @@ def test_noise_is_not_removed_as_polarized_light():
     assert abs(bias(ours)) < 0.0015
 
 
-def test_declipping_rebuilds_samples_exactly():
-    from polcam.separation.polarized_residual import _declipped
-
-    # one pixel, three channels: a sinusoid per channel (common AoLP 35 deg), then clipped at 1
-    t = np.deg2rad([0.0, 45.0, 90.0, 135.0])
-    phi = np.deg2rad(35.0)
-    ic = np.array([0.95, 0.78, 0.5])
-    amp = np.array([0.3, 0.3, 0.2])
-    true = (ic[None] + amp[None] * np.cos(2 * t[:, None] - 2 * phi)).reshape(4, 1, 1, 3).astype(np.float32)
-    clipped = np.minimum(true, 1.0)
-    assert (true >= 1.0).sum(axis=0).ravel().tolist() == [2, 1, 0]   # R two samples over, G one, B none
-    assert np.all((clipped >= 1.0) | (clipped < 0.98))              # no sample just under the white level
-    got = _declipped(clipped)
-    np.testing.assert_allclose(got, true, atol=1e-5)                 # G by the S0 identity, R by B's AoLP
-    # a measurement that contradicts the model (the rebuilt value below the clipped one) is kept
-    odd = clipped.copy()
-    odd[:, 0, 0, 0] = [1.0, 0.5, 0.5, 0.5]
-    np.testing.assert_array_equal(_declipped(odd)[:, 0, 0, 0], odd[:, 0, 0, 0])
-    # with the AoLP at 20 deg the two unclipped samples of R (90 and 135 deg) sit nearly symmetric
-    # about the sinusoid's minimum: the 2 x 2 system is ill-conditioned (|det| 0.12) and R is left as is
-    true20 = (ic[None] + amp[None] * np.cos(2 * t[:, None] - 2 * np.deg2rad(20.0))).reshape(4, 1, 1, 3)
-    c20 = np.minimum(true20, 1.0).astype(np.float32)
-    assert (c20[:, 0, 0, 0] >= 1.0).sum() == 2
-    np.testing.assert_array_equal(_declipped(c20)[:, 0, 0, 0], c20[:, 0, 0, 0])
-
-
 def test_clipped_strongly_polarized_highlight():
     # a bright, fully polarized white highlight on a coloured patch clips some angles of the red and
     # green channels: declipping recovers the diffuse there, beyond what imin (or no declipping) does
@@ -445,3 +419,47 @@ def test_stages_show_each_step():
     mono = stages(st.mean(axis=-1))
     assert set(mono) == {"imin", "diffuse"}
     np.testing.assert_allclose(mono["imin"], unpol.mean(axis=-1), atol=1e-5)
+
+
+def _two_cluster_ramp():
+    """Four matte patches above a ramp of one material drifting from blue to cyan, no specular light.
+
+    With these patches `shen13`'s clustering puts the ramp into two clusters whose intensity
+    ratios differ (1.52 and 1.59), so its removal jumps where the cluster changes.
+    """
+    img = np.zeros((64, 128, 3))
+    for k, c in enumerate([(0.32, 0.29, 0.33), (0.48, 0.29, 0.08), (0.23, 0.57, 0.29), (0.35, 0.28, 0.14)]):
+        img[:32, 32 * k:32 * (k + 1)] = c
+    t = np.linspace(0, 1, 128)[:, None]
+    img[32:] = (np.array([0.25, 0.32, 0.81]) * (1 - t) + np.array([0.29, 0.8, 0.73]) * t)[None]
+    return img
+
+
+def test_colour_prior_has_no_jump_at_a_cluster_boundary():
+    from polcam.separation.polarized_residual import _specular_free
+    from polcam.separation.shen13 import cluster_ratios, ratio_specular
+
+    img = _two_cluster_ramp()
+    q, _ = cluster_ratios(img)
+    assert len(np.unique(q[40])) == 2                      # the ramp is split: the case this guards
+    hard = ratio_specular(img, q)[32:]
+    soft = (img - _specular_free(img, 9)).max(axis=-1)[32:]
+    jump_hard = np.abs(np.diff(hard, axis=1)).max()
+    assert jump_hard > 0.01
+    assert np.abs(np.diff(soft, axis=1)).max() < 0.2 * jump_hard
+
+
+def test_colour_prior_on_one_material_is_shen13s():
+    # one material (a shaded red disc with a white highlight) has one ratio: smoothing changes nothing
+    from polcam.separation.polarized_residual import _specular_free
+    from polcam.separation.shen13 import separate_shen13
+
+    h, w = 48, 64
+    yy, xx = np.mgrid[:h, :w]
+    disc = ((yy - 24) ** 2 + (xx - 32) ** 2) < 20 ** 2
+    shade = np.clip(1.0 - ((yy - 18) ** 2 + (xx - 26) ** 2) / 900.0, 0.3, 1.0)
+    img = np.where(disc[..., None], shade[..., None] * np.array([0.7, 0.2, 0.15]), 0.0)
+    img = np.clip(img + 0.25 * _bump(h, w, 20, 28, 3)[..., None] * disc[..., None], 0.0, 1.0)
+    ref = separate_shen13(img)[0]
+    np.testing.assert_allclose(_specular_free(img, 9), ref, atol=1e-5)
+    assert np.abs(img - ref).max() > 0.1                   # and shen13 does remove the highlight here

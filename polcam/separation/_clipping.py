@@ -1,0 +1,105 @@
+"""Clipped samples: rebuilt from the unclipped angles, or filled from the neighbours.
+
+Used by ``polarized-residual`` (docs/algorithm.md, polarized-residual: declipping before step 1,
+and the clipped highlights' fill of step 7).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from polcam.separation._illuminant import _SATURATED
+
+__all__ = ["declipped", "inpaint"]
+
+
+def declipped(stack: np.ndarray) -> np.ndarray:
+    """The stack with clipped samples rebuilt from the unclipped ones where the physics allows.
+
+    ``stack`` is (4, H, W, C) float32 (angles 0, 45, 90, 135; C = 3 colours, or 1 for mono).
+    A sample at or above the white level (``_SATURATED``) holds less than the light that fell
+    on it.  Per pixel and channel:
+
+    * one clipped sample: every ideal polarizer stack has ``I0 + I90 = I45 + I135`` (both S0),
+      so the clipped one is the sum of its two neighbours' angles less the opposite one;
+    * two clipped samples: the two others give ``Ic`` and the amplitude ``A`` of
+      ``I(t) = Ic + A cos(2t - 2 phi)`` once the AoLP ``phi`` is known, taken from the pixel's
+      channels that have no clipped sample (a specular highlight's polarization is common to
+      the channels, or from the nearest unclipped pixels within 15 pixels); skipped where none
+      is found or the 2 x 2 system is ill-conditioned (|det| < 0.2).
+
+    A rebuilt value replaces the sample only when it is at least the clipped value (otherwise
+    the measurement contradicts the model and is kept).  Pixels with a channel clipped at three
+    or four angles are left as they are (the clipped highlights' fill handles them).
+    """
+    s = stack.copy()
+    clipped = stack >= _SATURATED                                  # (4, H, W, C)
+    n = clipped.sum(axis=0, dtype=np.int8)
+    if not n.any():
+        return s
+    # pixels with a channel clipped at three or four angles are left whole: that channel is not
+    # measured, and the clipped highlights' fill (from the neighbours) handles them
+    n[(n >= 3).any(axis=-1)] = 0
+    # one clipped sample (sparse: only those pixels and channels are touched)
+    yy, xx, cc = np.nonzero(n == 1)
+    if yy.size:
+        v = stack[:, yy, xx, cc]                                   # (4, N)
+        k = np.argmax(clipped[:, yy, xx, cc], axis=0)
+        cols = np.arange(yy.size)
+        est = v[(k + 1) % 4, cols] + v[(k + 3) % 4, cols] - v[(k + 2) % 4, cols]
+        keep = est >= v[k, cols]
+        s[k[keep], yy[keep], xx[keep], cc[keep]] = est[keep]
+    yy, xx, cc = np.nonzero(n == 2)
+    if yy.size:
+        free = ~clipped.any(axis=0)                                # (H, W, C) channels with no clipped sample
+        qq = (0.5 * (stack[0] - stack[2]) * free).sum(axis=-1)
+        uu = (0.5 * (stack[1] - stack[3]) * free).sum(axis=-1)
+        # where no channel of the pixel is free, the AoLP of the free channels around it: the nearest of
+        # the 7 x 7, 15 x 15 and 31 x 31 neighbourhoods that has any (a highlight's AoLP varies smoothly)
+        have = free.any(axis=-1)
+        for side in (7, 15, 31):
+            if have[yy, xx].all():
+                break
+            qn = cv2.boxFilter(qq.astype(np.float32), -1, (side, side), normalize=False)
+            un = cv2.boxFilter(uu.astype(np.float32), -1, (side, side), normalize=False)
+            found = ~have & (np.hypot(qn, un) > 0)
+            qq = np.where(found, qn, qq)
+            uu = np.where(found, un, uu)
+            have = have | found
+        phi = 0.5 * np.arctan2(uu[yy, xx], qq[yy, xx])             # (N,)
+        ok = np.hypot(qq[yy, xx], uu[yy, xx]) > 0
+        angles = np.deg2rad(np.array([0.0, 45.0, 90.0, 135.0]))
+        cosk = np.cos(2 * angles[:, None] - 2 * phi[None])          # (4, N)
+        v = stack[:, yy, xx, cc]                                   # (4, N)
+        cl = clipped[:, yy, xx, cc]
+        order = np.argsort(cl, axis=0, kind="stable")              # unclipped first
+        a, b = order[0], order[1]
+        cols = np.arange(yy.size)
+        det = cosk[b, cols] - cosk[a, cols]
+        ok &= np.abs(det) >= 0.2
+        amp = (v[b, cols] - v[a, cols]) / np.where(ok, det, 1.0)
+        icx = v[a, cols] - amp * cosk[a, cols]
+        for j in (2, 3):
+            k = order[j]
+            est = icx + amp * cosk[k, cols]
+            keep = ok & (est >= v[k, cols])
+            s[k[keep], yy[keep], xx[keep], cc[keep]] = est[keep]
+    return s
+
+
+def inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Fill ``img`` ((H, W, C) float >= 0) where ``mask`` ((H, W) bool) from its surroundings.
+
+    Telea's fast-marching method (J. Graphics Tools 9(1), 2004; OpenCV's ``INPAINT_TELEA``) per
+    channel on 16-bit values (``img`` clipped to [0, 1]), radius 3 pixels (its cost grows with the
+    radius squared: a fiftieth of the side took seconds on a full-resolution frame).
+    """
+    m = mask.astype(np.uint8)
+    radius = 3.0
+    out = np.empty_like(img, dtype=np.float32)
+    for c in range(img.shape[-1]):
+        # in 16 bits: OpenCV's float inpainting returns values outside its input's range
+        x = np.round(np.clip(img[..., c], 0.0, 1.0) * 65535.0).astype(np.uint16)
+        out[..., c] = cv2.inpaint(x, m, radius, cv2.INPAINT_TELEA).astype(np.float32) / 65535.0
+    return out

@@ -1,0 +1,52 @@
+"""Clipped samples: declipping by the polarizer identities, and the inpainting fill."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from polcam.separation._clipping import declipped, inpaint
+
+
+def test_declipping_rebuilds_samples_exactly():
+    # one pixel, three channels: a sinusoid per channel (common AoLP 35 deg), then clipped at 1
+    t = np.deg2rad([0.0, 45.0, 90.0, 135.0])
+    phi = np.deg2rad(35.0)
+    ic = np.array([0.95, 0.78, 0.5])
+    amp = np.array([0.3, 0.3, 0.2])
+    true = (ic[None] + amp[None] * np.cos(2 * t[:, None] - 2 * phi)).reshape(4, 1, 1, 3).astype(np.float32)
+    clipped = np.minimum(true, 1.0)
+    assert (true >= 1.0).sum(axis=0).ravel().tolist() == [2, 1, 0]   # R two samples over, G one, B none
+    assert np.all((clipped >= 1.0) | (clipped < 0.98))              # no sample just under the white level
+    got = declipped(clipped)
+    np.testing.assert_allclose(got, true, atol=1e-5)                 # G by the S0 identity, R by B's AoLP
+    # a measurement that contradicts the model (the rebuilt value below the clipped one) is kept
+    odd = clipped.copy()
+    odd[:, 0, 0, 0] = [1.0, 0.5, 0.5, 0.5]
+    np.testing.assert_array_equal(declipped(odd)[:, 0, 0, 0], odd[:, 0, 0, 0])
+    # with the AoLP at 20 deg the two unclipped samples of R (90 and 135 deg) sit nearly symmetric
+    # about the sinusoid's minimum: the 2 x 2 system is ill-conditioned (|det| 0.12) and R is left as is
+    true20 = (ic[None] + amp[None] * np.cos(2 * t[:, None] - 2 * np.deg2rad(20.0))).reshape(4, 1, 1, 3)
+    c20 = np.minimum(true20, 1.0).astype(np.float32)
+    assert (c20[:, 0, 0, 0] >= 1.0).sum() == 2
+    np.testing.assert_array_equal(declipped(c20)[:, 0, 0, 0], c20[:, 0, 0, 0])
+
+
+def test_inpaint_fills_a_hole_from_a_smooth_surrounding():
+    # a linear ramp in x with a 20 x 20 hole: the fill follows the ramp, the rest is untouched
+    h, w = 60, 90
+    ramp = np.tile(np.linspace(0.2, 0.8, w, dtype=np.float32), (h, 1))
+    img = np.stack([ramp, 0.5 * ramp, np.full((h, w), 0.3, np.float32)], axis=-1)
+    mask = np.zeros((h, w), bool)
+    mask[20:40, 35:55] = True
+    holed = img.copy()
+    holed[mask] = 1.0
+    out = inpaint(holed, mask)
+    assert out.shape == img.shape and out.dtype == np.float32
+    np.testing.assert_allclose(out[~mask], holed[~mask], atol=1.0 / 65535)
+    # against the best constant fill, the mean of the hole's one-pixel border: under half its error
+    ring = np.zeros((h, w), bool)
+    ring[19:41, 34:56] = True
+    ring &= ~mask
+    err = np.abs(out[mask] - img[mask]).mean()
+    err_const = np.abs(img[ring].mean(axis=0) - img[mask]).mean()
+    assert err < 0.5 * err_const
