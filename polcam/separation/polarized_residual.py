@@ -309,10 +309,8 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
 
     # 3. where coherent polarized specular light is (highlights; a_coh is specular only, step 2)
     lum = ic.mean(axis=-1)
-    # the floor of the coherent polarized amplitude that noise leaves everywhere
-    floor = float(np.median(a_coh))
-    a_eff = np.maximum(a_coh - floor, 0.0)
-    lum_s = cv2.GaussianBlur(lum, (k_small, k_small), 0)
+    floor, a_eff, lum_s, gate = _coherent_gate(a_coh, lum, k_small, float(opts["polarized_threshold"]),
+                                               float(g.mean()))
     spec = a_eff * float(g.mean()) > np.maximum(opts["polarized_threshold"] * lum_s, 1.0 / 255)
     k_ctx = _odd(opts["context"] * side)
 
@@ -354,11 +352,8 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
     #    (1 - rho_s) / rho_s) measured on coloured highlights and smoothed over the neighbourhood:
     #    achromatic pixels take the k of the coloured highlights around them (or of the image)
     a_pix = np.minimum(a_eff, a)                            # coherent, and no more than the pixel's own
-    # only where coherent polarized light marks a highlight: a ramp from polarized_threshold to twice
-    # it in the coherent degree of polarization (weakly polarized white surfaces stay diffuse)
-    t = float(opts["polarized_threshold"])
-    dop = a_eff * float(g.mean()) / np.maximum(lum_s, 1e-6)
-    gate = np.clip((dop - t) / t, 0.0, 1.0)
+    # only where coherent polarized light marks a highlight (step 3's gate: weakly polarized white
+    # surfaces stay diffuse)
     # not where a sample is clipped: that pixel's colour (and so its specular share) is not measured, and
     # a clipped channel makes the residual look paler, which overstated k
     rel = coloured & spec & (a_pix > 1.0 / 255) & ~clipped_any
@@ -503,18 +498,30 @@ def _mono(stack: np.ndarray, opts: dict[str, Any],
     side = max(h, w)
     k_small = _odd(max(3.0, side / 200))
     a_coh = np.hypot(cv2.GaussianBlur(q, (k_small, k_small), 0), cv2.GaussianBlur(u, (k_small, k_small), 0))
-    floor = float(np.median(a_coh))
-    a_eff = np.maximum(a_coh - floor, 0.0)
-    lum_s = cv2.GaussianBlur(ic, (k_small, k_small), 0)
-    t = float(opts["polarized_threshold"])
-    dop = a_eff / np.maximum(lum_s, 1e-6)
-    gate = np.clip((dop - t) / t, 0.0, 1.0)
+    floor, a_eff, _, gate = _coherent_gate(a_coh, ic, k_small, float(opts["polarized_threshold"]))
     a_pix = (np.minimum(a_eff, isv) * gate).astype(np.float32)
     ratio = _gradient_ratio(imin, a_pix, float(opts["max_ratio"]))
     diffuse = np.clip(imin - ratio * a_pix, 0.0, np.minimum(imin, measured))
     if keep is not None:
         keep["imin"] = imin.astype(np.float32)
     return diffuse.astype(np.float32), {"residual_ratio": ratio, "polarized_floor": floor}
+
+
+def _coherent_gate(a_coh: np.ndarray, lum: np.ndarray, k_small: int, threshold: float,
+                   scale: float = 1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """Where coherent polarized light marks a highlight (colour and mono paths alike).
+
+    ``a_coh`` (H, W) is the smoothed polarized amplitude (times ``scale``, the illuminant's mean
+    for colour, it is in the units of ``lum``), ``lum`` (H, W) the intensity.  Returns the floor
+    that noise leaves everywhere (the median of ``a_coh``), ``a_eff = max(a_coh - floor, 0)``,
+    ``lum`` Gaussian-blurred over ``k_small``, and the gate: a ramp from ``threshold`` to twice it
+    in the coherent degree of polarization ``scale a_eff / lum_s``, (H, W) in [0, 1].
+    """
+    floor = float(np.median(a_coh))
+    a_eff = np.maximum(a_coh - floor, 0.0)
+    lum_s = cv2.GaussianBlur(lum, (k_small, k_small), 0)
+    dop = a_eff * scale / np.maximum(lum_s, 1e-6)
+    return floor, a_eff, lum_s, np.clip((dop - threshold) / threshold, 0.0, 1.0)
 
 
 def _gradient_ratio(imin: np.ndarray, a_pix: np.ndarray, max_ratio: float) -> float:
