@@ -26,6 +26,7 @@ class NumpyXP:
 
     name = "numpy"
     float64 = np.float64
+    float32 = np.float32
     #: dtype of index arrays
     index = np.intp
 
@@ -162,6 +163,48 @@ class NumpyXP:
     def tiny(a: np.ndarray) -> float:
         return float(np.finfo(a.dtype).tiny)
 
+    arctan2 = staticmethod(np.arctan2)
+    cos = staticmethod(np.cos)
+    abs = staticmethod(np.abs)
+    concatenate = staticmethod(np.concatenate)
+    nonzero = staticmethod(np.nonzero)
+
+    @staticmethod
+    def vnorm(a: np.ndarray, axis: int = -1) -> np.ndarray:
+        """Euclidean norm along ``axis``."""
+        return np.linalg.norm(a, axis=axis)
+
+    @staticmethod
+    def median(a: np.ndarray) -> Any:
+        """Median of all elements (the mean of the two middle ones for an even count): a numpy scalar."""
+        return np.median(a)
+
+    @staticmethod
+    def quantile(a: np.ndarray, q: float) -> Any:
+        """``q`` quantile of all elements, linear between the order statistics (numpy's default): a numpy scalar."""
+        return np.quantile(a, q)
+
+    @staticmethod
+    def argsort(a: np.ndarray, axis: int = -1, stable: bool = False) -> np.ndarray:
+        return np.argsort(a, axis=axis, kind="stable" if stable else None)
+
+    @staticmethod
+    def argmax(a: np.ndarray, axis: int) -> np.ndarray:
+        return np.argmax(a, axis=axis)
+
+    @staticmethod
+    def cumsum(a: np.ndarray, axis: int = 0) -> np.ndarray:
+        return np.cumsum(a, axis=axis)
+
+    @staticmethod
+    def searchsorted(sorted_: np.ndarray, v: Any, side: str = "left") -> Any:
+        return np.searchsorted(sorted_, v, side=side)
+
+    @staticmethod
+    def interp(x: np.ndarray, xs: Any, ys: Any) -> np.ndarray:
+        """Piecewise-linear interpolation of the points ``(xs, ys)`` (host sequences, ``xs`` increasing) at ``x``."""
+        return np.interp(x, xs, ys)
+
     @staticmethod
     def sqnorms(a: np.ndarray) -> np.ndarray:
         """Squared Frobenius norm of each a[b], float64 (B,)."""
@@ -184,6 +227,7 @@ class TorchXP:
 
         self.torch = torch
         self.float64 = torch.float64
+        self.float32 = torch.float32
         self.index = torch.int64
 
     def asarray(self, a: Any, like: Any = None, dtype: Any = None) -> Any:
@@ -277,11 +321,88 @@ class TorchXP:
     def einsum(self, spec: str, *ops: Any) -> Any:
         return self.torch.einsum(spec, *ops)
 
+    def _pair(self, a: Any, b: Any) -> tuple[Any, Any]:
+        """Both as tensors (a Python number takes the other's dtype and device)."""
+        t = self.torch
+        if not isinstance(a, t.Tensor):
+            a = t.as_tensor(a, dtype=b.dtype, device=b.device)
+        elif not isinstance(b, t.Tensor):
+            b = t.as_tensor(b, dtype=a.dtype, device=a.device)
+        return a, b
+
     def maximum(self, a: Any, b: Any) -> Any:
-        return self.torch.maximum(a, b)
+        return self.torch.maximum(*self._pair(a, b))
 
     def minimum(self, a: Any, b: Any) -> Any:
-        return self.torch.minimum(a, b)
+        return self.torch.minimum(*self._pair(a, b))
+
+    def arctan2(self, a: Any, b: Any) -> Any:
+        return self.torch.atan2(a, b)
+
+    def cos(self, a: Any) -> Any:
+        return self.torch.cos(a)
+
+    def abs(self, a: Any) -> Any:
+        return self.torch.abs(a)
+
+    def concatenate(self, arrays: Sequence[Any], axis: int = 0) -> Any:
+        return self.torch.cat(list(arrays), dim=axis)
+
+    def nonzero(self, a: Any) -> tuple[Any, ...]:
+        return self.torch.nonzero(a, as_tuple=True)
+
+    def vnorm(self, a: Any, axis: int = -1) -> Any:
+        return self.torch.linalg.vector_norm(a, dim=axis)
+
+    def median(self, a: Any) -> float:
+        # numpy's median: the mean of the two middle values for an even count (torch.median takes
+        # the lower one); kthvalue, as torch.quantile refuses more than 2^24 elements
+        f = a.reshape(-1)
+        n = f.numel()
+        lo = f.kthvalue((n + 1) // 2).values
+        hi = f.kthvalue(n // 2 + 1).values
+        return 0.5 * (float(lo) + float(hi))
+
+    def quantile(self, a: Any, q: float) -> float:
+        # numpy's linear method from two order statistics (torch.quantile refuses over 2^24 elements)
+        f = a.reshape(-1)
+        pos = q * (f.numel() - 1)
+        lo = int(np.floor(pos))
+        hi = min(lo + 1, f.numel() - 1)
+        v_lo = float(f.kthvalue(lo + 1).values)
+        v_hi = float(f.kthvalue(hi + 1).values) if hi != lo else v_lo
+        return v_lo + (pos - lo) * (v_hi - v_lo)
+
+    def argsort(self, a: Any, axis: int = -1, stable: bool = False) -> Any:
+        return self.torch.argsort(a, dim=axis, stable=stable)
+
+    def argmax(self, a: Any, axis: int) -> Any:
+        # the first maximum, as numpy's (torch's argmax takes no bool)
+        return (a.to(self.torch.uint8) if a.dtype == self.torch.bool else a).argmax(dim=axis)
+
+    @staticmethod
+    def cumsum(a: Any, axis: int = 0) -> Any:
+        return a.cumsum(dim=axis)
+
+    def searchsorted(self, sorted_: Any, v: Any, side: str = "left") -> Any:
+        if not isinstance(v, self.torch.Tensor):
+            v = self.torch.as_tensor(v, dtype=sorted_.dtype, device=sorted_.device)
+        if v.ndim == 0:
+            return self.torch.searchsorted(sorted_, v.reshape(1), right=side == "right")[0]
+        return self.torch.searchsorted(sorted_, v, right=side == "right")
+
+    def interp(self, x: Any, xs: Any, ys: Any) -> Any:
+        t = self.torch
+        xs = t.as_tensor(np.asarray(xs, np.float64), device=x.device)
+        ys = t.as_tensor(np.asarray(ys, np.float64), device=x.device)
+        xd = x.to(t.float64)
+        if xs.numel() == 1:
+            return t.full_like(xd, float(ys[0]))
+        # np.interp: constant beyond the ends, linear between the bracketing points
+        i = t.searchsorted(xs, xd.contiguous(), right=True).clamp(1, xs.numel() - 1)
+        x0, x1, y0, y1 = xs[i - 1], xs[i], ys[i - 1], ys[i]
+        wgt = ((xd - x0) / t.where(x1 > x0, x1 - x0, t.ones_like(x1))).clamp(0.0, 1.0)
+        return y0 + wgt * (y1 - y0)
 
     def clamp_min(self, a: Any, lo: Any, out: Any = None) -> Any:
         return a.clamp_min(lo) if out is None else self.torch.clamp_min(a, lo, out=out)

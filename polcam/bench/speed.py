@@ -17,7 +17,9 @@ Cases:
   resolution; the seconds include bilinear demosaicing.
 
 With ``--method NAME`` (any registered method, e.g. ``polarized-residual``)
-that method alone is timed on the same cases (one row per case, no exact solver).
+that method alone is timed on the same cases (one row per case, no exact solver);
+``--device`` runs it on a PyTorch device where the method has that backend
+(``polarized-residual``).
 
 Every case runs in a fresh Python process and is timed there around the work
 only.  Peak memory is the largest proportional set size (PSS: shared pages
@@ -154,9 +156,13 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
     if opts.get("device"):
         import torch
 
-        from polcam.separation.tensor import warm_up
+        if method == "tensor":
+            from polcam.separation.tensor import warm_up
 
-        warm_up(opts["device"])        # the device's one-off start stays out of the figure
+            warm_up(opts["device"])    # the device's one-off start stays out of the figure
+        else:
+            rng = np.random.default_rng(0)
+            separate(rng.uniform(0.1, 0.6, (4, 100, 70, 3)), method=method, device=opts["device"])
         dev = torch.device(opts["device"])
         cuda = dev.type == "cuda"
         device_name = torch.cuda.get_device_name(dev) if cuda else str(dev)
@@ -368,7 +374,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", default="tensor",
                    help="method timed (default tensor: its exact and fast solvers; another method is "
                         "timed alone, e.g. polarized-residual)")
-    p.add_argument("--device", help="PyTorch device for the fast solver (default: numpy)")
+    p.add_argument("--device", help="PyTorch device for the tensor method's fast solver or polarized-residual "
+                                    "(default: numpy)")
     p.add_argument("--tol", type=float, help="stopping tolerance of the fast solver")
     p.add_argument("--workers", type=int, help="worker processes / threads (default: CPU count)")
     p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
@@ -378,9 +385,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run_args(a: argparse.Namespace) -> int:
     """Run ``polcam bench speed`` with parsed options; print the table."""
     options: dict[str, Any] = {}
-    if a.method != "tensor" and (a.device or a.tol is not None or a.workers is not None):
-        raise MethodError(f"bench speed: --device, --tol and --workers are the tensor method's options, "
+    if a.method != "tensor" and (a.tol is not None or a.workers is not None):
+        raise MethodError(f"bench speed: --tol and --workers are the tensor method's options, "
                           f"not {a.method!r}'s")
+    if a.device and a.method != "tensor":
+        from polcam.separation import method_spec
+
+        if "device" not in (method_spec(a.method).options or ()):
+            raise MethodError(f"bench speed: --device: method {a.method!r} has no PyTorch backend "
+                              "(tensor and polarized-residual have)")
     if a.device:
         options["device"] = a.device
     if a.tol is not None:

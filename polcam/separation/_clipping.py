@@ -6,18 +6,23 @@ and the clipped highlights' fill of step 7).
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 
+from polcam import _imageops
+from polcam._xp import namespace
 from polcam.separation._illuminant import _SATURATED
 
 __all__ = ["declipped", "inpaint"]
 
 
-def declipped(stack: np.ndarray) -> np.ndarray:
+def declipped(stack: Any) -> Any:
     """The stack with clipped samples rebuilt from the unclipped ones where the physics allows.
 
-    ``stack`` is (4, H, W, C) float32 (angles 0, 45, 90, 135; C = 3 colours, or 1 for mono).
+    ``stack`` is (4, H, W, C) float32 (angles 0, 45, 90, 135; C = 3 colours, or 1 for mono),
+    numpy or torch (the result is of the same kind, on the same device).
     A sample at or above the white level (``_SATURATED``) holds less than the light that fell
     on it.  Per pixel and channel:
 
@@ -33,25 +38,26 @@ def declipped(stack: np.ndarray) -> np.ndarray:
     the measurement contradicts the model and is kept).  Pixels with a channel clipped at three
     or four angles are left as they are (the clipped highlights' fill handles them).
     """
-    s = stack.copy()
+    xp = namespace(stack)
+    s = xp.copy(stack)
     clipped = stack >= _SATURATED                                  # (4, H, W, C)
-    n = clipped.sum(axis=0, dtype=np.int8)
-    if not n.any():
+    n = clipped.sum(axis=0)
+    if not bool(n.any()):
         return s
     # pixels with a channel clipped at three or four angles are left whole: that channel is not
     # measured, and the clipped highlights' fill (from the neighbours) handles them
     n[(n >= 3).any(axis=-1)] = 0
     # one clipped sample (sparse: only those pixels and channels are touched)
-    yy, xx, cc = np.nonzero(n == 1)
-    if yy.size:
+    yy, xx, cc = xp.nonzero(n == 1)
+    if yy.shape[0]:
         v = stack[:, yy, xx, cc]                                   # (4, N)
-        k = np.argmax(clipped[:, yy, xx, cc], axis=0)
-        cols = np.arange(yy.size)
+        k = xp.argmax(clipped[:, yy, xx, cc], axis=0)
+        cols = xp.arange(yy.shape[0], like=v)
         est = v[(k + 1) % 4, cols] + v[(k + 3) % 4, cols] - v[(k + 2) % 4, cols]
         keep = est >= v[k, cols]
         s[k[keep], yy[keep], xx[keep], cc[keep]] = est[keep]
-    yy, xx, cc = np.nonzero(n == 2)
-    if yy.size:
+    yy, xx, cc = xp.nonzero(n == 2)
+    if yy.shape[0]:
         free = ~clipped.any(axis=0)                                # (H, W, C) channels with no clipped sample
         qq = (0.5 * (stack[0] - stack[2]) * free).sum(axis=-1)
         uu = (0.5 * (stack[1] - stack[3]) * free).sum(axis=-1)
@@ -59,32 +65,32 @@ def declipped(stack: np.ndarray) -> np.ndarray:
         # the 7 x 7, 15 x 15 and 31 x 31 neighbourhoods that has any (a highlight's AoLP varies smoothly)
         have = free.any(axis=-1)
         for side in (7, 15, 31):
-            if have[yy, xx].all():
+            if bool(have[yy, xx].all()):
                 break
-            qn = cv2.boxFilter(qq.astype(np.float32), -1, (side, side), normalize=False)
-            un = cv2.boxFilter(uu.astype(np.float32), -1, (side, side), normalize=False)
-            found = ~have & (np.hypot(qn, un) > 0)
-            qq = np.where(found, qn, qq)
-            uu = np.where(found, un, uu)
+            qn = _imageops.box(xp.astype(qq, xp.float32), side, normalize=False)
+            un = _imageops.box(xp.astype(uu, xp.float32), side, normalize=False)
+            found = ~have & (xp.hypot(qn, un) > 0)
+            qq = xp.where(found, qn, qq)
+            uu = xp.where(found, un, uu)
             have = have | found
-        phi = 0.5 * np.arctan2(uu[yy, xx], qq[yy, xx])             # (N,)
-        ok = np.hypot(qq[yy, xx], uu[yy, xx]) > 0
-        angles = np.deg2rad(np.array([0.0, 45.0, 90.0, 135.0]))
-        cosk = np.cos(2 * angles[:, None] - 2 * phi[None])          # (4, N)
+        phi = 0.5 * xp.arctan2(uu[yy, xx], qq[yy, xx])             # (N,)
+        ok = xp.hypot(qq[yy, xx], uu[yy, xx]) > 0
+        angles = xp.asarray(np.deg2rad(np.array([0.0, 45.0, 90.0, 135.0])), like=phi, dtype=xp.float64)
+        cosk = xp.cos(2 * angles[:, None] - 2 * phi[None])          # (4, N)
         v = stack[:, yy, xx, cc]                                   # (4, N)
         cl = clipped[:, yy, xx, cc]
-        order = np.argsort(cl, axis=0, kind="stable")              # unclipped first
+        order = xp.argsort(xp.astype(cl, xp.float32), axis=0, stable=True)   # unclipped first
         a, b = order[0], order[1]
-        cols = np.arange(yy.size)
+        cols = xp.arange(yy.shape[0], like=v)
         det = cosk[b, cols] - cosk[a, cols]
-        ok &= np.abs(det) >= 0.2
-        amp = (v[b, cols] - v[a, cols]) / np.where(ok, det, 1.0)
+        ok &= abs(det) >= 0.2
+        amp = (v[b, cols] - v[a, cols]) / xp.where(ok, det, 1.0)
         icx = v[a, cols] - amp * cosk[a, cols]
         for j in (2, 3):
             k = order[j]
             est = icx + amp * cosk[k, cols]
             keep = ok & (est >= v[k, cols])
-            s[k[keep], yy[keep], xx[keep], cc[keep]] = est[keep]
+            s[k[keep], yy[keep], xx[keep], cc[keep]] = xp.astype(est[keep], s.dtype)
     return s
 
 

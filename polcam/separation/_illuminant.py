@@ -89,18 +89,21 @@ def _chroma(v: np.ndarray) -> np.ndarray:
     return v / v.sum()
 
 
-def _checked_stack(stack: np.ndarray) -> np.ndarray:
-    s = np.asarray(stack, dtype=np.float32)
+def _checked_stack(stack: Any) -> Any:
+    """The stack as float32 (a ``torch.Tensor`` stays one, on its device); MethodError for a bad shape."""
+    xp = namespace(stack)
+    s = np.asarray(stack, dtype=np.float32) if xp.name == "numpy" else xp.astype(stack, xp.float32)
     if s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
-        raise MethodError(f"illuminant: stack of shape {s.shape}: expected (4, H, W, 3)")
+        raise MethodError(f"illuminant: stack of shape {tuple(s.shape)}: expected (4, H, W, 3)")
     return s
 
 
-def _parts(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _parts(stack: Any) -> tuple[Any, Any, Any, Any]:
     s = _checked_stack(stack)
+    xp = namespace(s)
     ic = s.mean(axis=0)
-    isv = 0.5 * np.hypot(s[0] - s[2], s[1] - s[3])
-    unsat = s.max(axis=0).max(axis=-1) < _SATURATED
+    isv = 0.5 * xp.hypot(s[0] - s[2], s[1] - s[3])
+    unsat = xp.amax(xp.amax(s, axis=0), axis=-1) < _SATURATED
     return s, ic, isv, unsat
 
 
@@ -147,19 +150,20 @@ def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:
         (3,) float64 with mean 1, or NaNs when no pixel qualifies.
     """
     _, ic, isv, unsat = _parts(stack)
+    xp = namespace(ic)
     lum = ic.mean(axis=-1)
-    dolp = isv.mean(axis=-1) / np.maximum(lum, 1e-6)
+    dolp = isv.mean(axis=-1) / xp.maximum(lum, 1e-6)
     ok = unsat & (lum > 0)
-    if ok.any():
-        ok &= lum > 0.05 * np.quantile(lum, 0.99)
-    if not ok.any():
+    if bool(ok.any()):
+        ok &= lum > 0.05 * xp.quantile(lum, 0.99)
+    if not bool(ok.any()):
         return np.full(3, np.nan)
-    ok &= dolp >= np.median(dolp[ok])
-    if not ok.any():
+    ok &= dolp >= xp.median(dolp[ok])
+    if not bool(ok.any()):
         return np.full(3, np.nan)
     vals = lum[ok]
-    sel = vals >= np.quantile(vals, 1.0 - share)
-    return _unit_mean(ic[ok][sel].sum(axis=0, dtype=np.float64))
+    sel = vals >= xp.quantile(vals, 1.0 - share)
+    return _unit_mean(xp.to_numpy(xp.astype(ic[ok][sel], xp.float64).sum(axis=0)))
 
 
 def _check_efficiency(efficiency: object) -> np.ndarray:
@@ -258,8 +262,7 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
 def _projection_terms(stack: Any, efficiency: Any, own_colour: float | None) -> tuple[Any, Any]:
     """Per-pixel terms ``v_c(p) . n(p)`` ((H, W, 3) float64) and the unsaturated pixels ((H, W) bool).
 
-    :func:`projected_chromaticity` gives the formula; numpy or torch in, the same out (numpy
-    when ``own_colour`` weights them).
+    :func:`projected_chromaticity` gives the formula; numpy or torch in, the same out.
     """
     xp = namespace(stack)
     x = xp.astype(stack, xp.float64)
@@ -273,7 +276,7 @@ def _projection_terms(stack: Any, efficiency: Any, own_colour: float | None) -> 
     terms = xp.einsum("hwcj,hwj->hwc", v, box - vs)             # (H, W, 3)
     ok = xp.amax(xp.amax(x, axis=0), axis=-1) < 0.98
     if own_colour is not None:
-        terms, ok = _own_colour_weighted(xp.to_numpy(terms), xp.to_numpy(x), xp.to_numpy(ok), float(own_colour))
+        terms, ok = _own_colour_weighted(terms, x, ok, float(own_colour))
     return terms, ok
 
 
@@ -284,7 +287,8 @@ def _total_chromaticity(terms: Any, ok: Any, significance: float) -> np.ndarray:
     if t.shape[0] == 0:
         return np.full(3, 1 / 3)
     total = xp.to_numpy(xp.sum(t, axis=0))
-    noise = float(np.sqrt(np.sum(xp.to_numpy(xp.sum(t, axis=1)) ** 2)))
+    per_pixel = xp.sum(t, axis=1)
+    noise = float(np.sqrt(float((per_pixel * per_pixel).sum())))
     if total.sum() <= significance * noise or np.any(total <= 0):
         return np.full(3, 1 / 3)
     return total / total.sum()
@@ -309,8 +313,9 @@ def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int | None = None)
     ``inf`` for a significant colour with no measurable spread (a noiseless stack), 0 when the
     terms sum to nothing positive.
     """
-    t = np.where(np.asarray(ok)[..., None], np.asarray(terms, np.float64), 0.0)
-    total = t.sum(axis=(0, 1))
+    xp = namespace(terms)
+    t = xp.where(ok[..., None], xp.astype(terms, xp.float64), 0.0)
+    total = xp.to_numpy(t.sum(axis=(0, 1)))
     s = float(total.sum())
     if s <= 0:
         return 0.0
@@ -320,7 +325,7 @@ def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int | None = None)
         block = int(min(8, max(2, np.sqrt(h * w / 400.0))))
     hb, wb = max(h // block, 1), max(w // block, 1)
     bh, bw = h // hb, w // wb
-    b = t[:hb * bh, :wb * bw].reshape(hb, bh, wb, bw, 3).sum(axis=(1, 3)).reshape(-1, 3)
+    b = xp.to_numpy(t[:hb * bh, :wb * bw].reshape(hb, bh, wb, bw, 3).sum(axis=(1, 3)).reshape(-1, 3))
     r = b - np.outer(b.sum(axis=1), c)
     basis = _plane_basis()
     d = basis @ (c - 1.0 / 3.0)
@@ -330,19 +335,23 @@ def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int | None = None)
     return float(np.sqrt(d @ np.linalg.solve(cov, d)))
 
 
-def _own_colour_weighted(terms: np.ndarray, x: np.ndarray, ok: np.ndarray,
-                         dist: float) -> tuple[np.ndarray, np.ndarray]:
-    """The projection terms weighted against the surface's own colour (``projected_chromaticity``)."""
-    import cv2
+def _own_colour_weighted(terms: Any, x: Any, ok: Any, dist: float) -> tuple[Any, Any]:
+    """The projection terms weighted against the surface's own colour (``projected_chromaticity``).
 
+    ``terms`` (H, W, 3) float64, ``x`` the (4, H, W, 3) float64 stack and ``ok`` (H, W) bool, numpy
+    or torch (the result is of the same kind).
+    """
+    from polcam import _imageops
+
+    xp = namespace(terms)
     ic = x.mean(axis=0)
-    imin = np.maximum(ic - 0.5 * np.hypot(x[0] - x[2], x[1] - x[3]), 0.0)
-    e = imin / np.maximum(imin.sum(axis=-1, keepdims=True), 1e-12)
-    tb = np.stack([cv2.blur(terms[..., c].astype(np.float64), (5, 5)) for c in range(3)], axis=-1)
+    imin = xp.maximum(ic - 0.5 * xp.hypot(x[0] - x[2], x[1] - x[3]), 0.0)
+    e = imin / xp.maximum(imin.sum(axis=-1, keepdims=True), 1e-12)
+    tb = xp.stack([_imageops.box(xp.astype(terms[..., c], xp.float64), 5) for c in range(3)], axis=-1)
     ts = tb.sum(axis=-1, keepdims=True)
-    big = np.abs(ts) > 1e-12
-    chroma = np.where(big, tb / np.where(big, ts, 1.0), 1.0 / 3.0)
-    w = np.clip(np.linalg.norm(chroma - e, axis=-1) / dist, 0.0, 1.0)
+    big = abs(ts) > 1e-12
+    chroma = xp.where(big, tb / xp.where(big, ts, 1.0), 1.0 / 3.0)
+    w = xp.clip(xp.vnorm(chroma - e, axis=-1) / dist, 0.0, 1.0)
     if float(w[ok].sum()) < 0.05 * max(int(ok.sum()), 1):
         return terms, ok
     return terms * w[..., None], ok

@@ -8,9 +8,13 @@ shrunk by the noise of Ic (:func:`_prior_removal`).
 
 from __future__ import annotations
 
+from typing import Any
+
 import cv2
 import numpy as np
 
+from polcam import _imageops
+from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.separation._illuminant import _SATURATED
 
@@ -21,7 +25,7 @@ _KSIG = 2.5
 _COHERENT_KSIG = 4.0
 
 
-def _stokes_noise(stack: np.ndarray, ic: np.ndarray) -> np.ndarray:
+def _stokes_noise(stack: Any, ic: Any) -> Any:
     """Standard deviation of the noise of q and u per pixel, (H, W[, C]) like ``ic``.
 
     An ideal linear-polarizer stack obeys ``I0 + I90 = I45 + I135`` (both are S0) whatever the
@@ -34,39 +38,43 @@ def _stokes_noise(stack: np.ndarray, ic: np.ndarray) -> np.ndarray:
     independent noise; a smooth gain error leaves nothing there).  Each is a robust spread
     (1.4826 x the median absolute value) over pixels of similar intensity (eight quantile bins of
     ``ic``: photon noise grows with the signal, so it is taken non-decreasing in the intensity),
-    linearly interpolated in ``ic``.
+    linearly interpolated in ``ic``.  numpy or torch (float32) in, the same out.
     """
-    s = np.asarray(stack, dtype=np.float32)
+    xp = namespace(stack)
+    s = xp.astype(stack, xp.float32)
     shape = ic.shape
     flat = (shape[0], shape[1], -1)
     q = (0.5 * (s[0] - s[2])).reshape(flat)
     u = (0.5 * (s[1] - s[3])).reshape(flat)
     r = (0.5 * (s[0] + s[2] - s[1] - s[3])).reshape(flat)
     i2 = ic.reshape(flat)
-    valid = (s.max(axis=0) < _SATURATED).reshape(flat)      # clipping breaks both identities
-    out = np.empty(i2.shape, dtype=np.float32)
+    valid = (xp.amax(s, axis=0) < _SATURATED).reshape(flat)      # clipping breaks both identities
+    out = []
     for c in range(i2.shape[-1]):
         lev = i2[..., c]
-        hp_q = np.abs(q[..., c] - cv2.blur(q[..., c], (3, 3)))
-        hp_u = np.abs(u[..., c] - cv2.blur(u[..., c], (3, 3)))
-        sig_r = _binned_spread(lev, np.abs(r[..., c]) / np.sqrt(2.0), valid[..., c])
+        hp_q = abs(q[..., c] - _imageops.box(q[..., c], 3))
+        hp_u = abs(u[..., c] - _imageops.box(u[..., c], 3))
+        sig_r = _binned_spread(lev, abs(r[..., c]) / np.sqrt(2.0), valid[..., c])
         sig_hp = _binned_spread(lev, np.sqrt(9.0 / 8.0) * 0.5 * (hp_q + hp_u), valid[..., c])
-        out[..., c] = np.minimum(sig_r, sig_hp)
-    return out.reshape(shape)
+        out.append(xp.minimum(sig_r, sig_hp))
+    return xp.stack(out, axis=-1).reshape(shape)
 
 
-def _binned_spread(level: np.ndarray, absres: np.ndarray, valid: np.ndarray, bins: int = 8) -> np.ndarray:
+def _binned_spread(level: Any, absres: Any, valid: Any, bins: int = 8) -> Any:
     """Robust deviation of a zero-mean residual as a non-decreasing function of ``level``.
 
     ``level``, ``absres`` (the residual's absolute value) and ``valid`` (which pixels to learn
-    from) are (H, W); the result, (H, W) float32, is defined at every pixel.
+    from) are (H, W); the result, (H, W) float32, is defined at every pixel.  The eight bins'
+    statistics come from a regular subsample of at most 500 000 values, taken on the host
+    (a torch array's subsample is copied there); the interpolation runs on the array's device.
     """
+    xp = namespace(level)
     lev = level[valid]
     res = absres[valid]
-    if lev.size == 0:
-        return np.zeros(level.shape, np.float32)
-    step = max(1, lev.size // 250_000)                 # a regular subsample is plenty for eight medians
-    lev, res = lev[::step], res[::step]
+    if lev.shape[0] == 0:
+        return xp.zeros(level.shape, like=level, dtype=xp.float32)
+    step = max(1, lev.shape[0] // 250_000)             # a regular subsample is plenty for eight medians
+    lev, res = xp.to_numpy(lev[::step]), xp.to_numpy(res[::step])
     edges = np.quantile(lev, np.linspace(0, 1, bins + 1))
     idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, bins - 1)
     centres, sig = [], []
@@ -76,16 +84,17 @@ def _binned_spread(level: np.ndarray, absres: np.ndarray, valid: np.ndarray, bin
             centres.append(float(np.median(lev[m])))
             sig.append(1.4826 * float(np.median(res[m])))
     if not centres:
-        return np.zeros(level.shape, np.float32)
-    return np.interp(level, centres, np.maximum.accumulate(np.asarray(sig))).astype(np.float32)
+        return xp.zeros(level.shape, like=level, dtype=xp.float32)
+    return xp.astype(xp.interp(level, centres, np.maximum.accumulate(np.asarray(sig))), xp.float32)
 
 
-def _garrote(x2: np.ndarray, var: np.ndarray) -> np.ndarray:
+def _garrote(x2: Any, var: Any) -> Any:
     """Non-negative garrote factor ``clip(1 - _KSIG^2 var / x2, 0, 1)`` for a value of square ``x2``."""
-    return np.clip(1.0 - (_KSIG * _KSIG) * var / np.maximum(x2, 1e-12), 0.0, 1.0)
+    xp = namespace(x2)
+    return xp.clip(1.0 - (_KSIG * _KSIG) * var / xp.maximum(x2, 1e-12), 0.0, 1.0)
 
 
-def _prior_removal(diffuse: np.ndarray, sf: np.ndarray, sig: np.ndarray, *, smooth: int | None = None) -> np.ndarray:
+def _prior_removal(diffuse: Any, sf: Any, sig: Any, *, smooth: int | None = None) -> Any:
     """What the colour prior removes from ``diffuse``, shrunk by the noise of Ic.
 
     ``diffuse`` and ``sf`` (the prior's specular-free estimate) are (H, W, 3); ``sig`` is the
@@ -95,17 +104,18 @@ def _prior_removal(diffuse: np.ndarray, sf: np.ndarray, sig: np.ndarray, *, smoo
     the noise alone.  With ``smooth`` (an odd Gaussian kernel side), the removal is kept whole where
     its Gaussian-smoothed value exceeds ``_COHERENT_KSIG`` of its own deviations (a coherent
     highlight's, which the garrote would shrink by ``_KSIG^2 var / removal``: a quarter at five
-    deviations).  Returns (H, W, 3) float32 >= 0.
+    deviations).  Returns (H, W, 3) float32 >= 0 (numpy or torch, as the input).
     """
-    delta = diffuse - np.minimum(sf, diffuse)
+    xp = namespace(diffuse)
+    delta = diffuse - xp.minimum(sf, diffuse)
     dn2 = (delta * delta).sum(axis=-1, keepdims=True)
     var = 0.5 * (sig * sig).sum(axis=-1, keepdims=True)
     out = delta * _garrote(dn2, var)
     if smooth is not None:
-        db = cv2.GaussianBlur(delta, (smooth, smooth), 0)
+        db = _imageops.gaussian(delta, smooth)
         coherent = (db * db).sum(axis=-1, keepdims=True) > (_COHERENT_KSIG * _reduction(smooth)) ** 2 * var
-        out = np.where(coherent, delta, out)
-    return out.astype(np.float32)
+        out = xp.where(coherent, delta, out)
+    return xp.astype(out, xp.float32)
 
 
 def _reduction(side: int) -> float:
@@ -114,23 +124,24 @@ def _reduction(side: int) -> float:
     return float(np.sqrt(((k @ k.T) ** 2).sum()))
 
 
-def _debias(isv: np.ndarray, sig: np.ndarray, how: str, *, components: int = 2) -> np.ndarray:
+def _debias(isv: Any, sig: Any, how: str, *, components: int = 2) -> Any:
     """The polarized amplitude with the noise's bias removed (``isv``, ``sig`` same shape).
 
     ``isv`` is the length of ``components`` (2: q and u; 1: one projection) Stokes components, each
     with noise of deviation ``sig``.
     """
+    xp = namespace(isv)
     if how == "rice":      # E|A|^2 = a^2 + components sigma^2
-        return np.sqrt(np.maximum(isv * isv - components * sig * sig, 0.0))
+        return xp.sqrt(xp.maximum(isv * isv - components * sig * sig, 0.0))
     if how == "shrink":
         return isv * _garrote(isv * isv, sig * sig)
     if how == "thresh":
-        return np.maximum(isv - _KSIG * sig, 0.0)
+        return xp.maximum(isv - _KSIG * sig, 0.0)
     raise MethodError(f"polarized-residual: noise={how!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
 
 
-def _axis_debias(q: np.ndarray, u: np.ndarray, c2: np.ndarray, s2: np.ndarray, smoothed: np.ndarray,
-                 sig: np.ndarray, reduction: float, how: str) -> np.ndarray:
+def _axis_debias(q: Any, u: Any, c2: Any, s2: Any, smoothed: Any,
+                 sig: Any, reduction: float, how: str) -> Any:
     """The polarized amplitude per pixel and channel, unbiased where the polarization axis is known.
 
     ``q``, ``u`` (H, W, C) are the Stokes components, ``(c2, s2)`` (H, W, 1) the unit polarization
@@ -145,8 +156,9 @@ def _axis_debias(q: np.ndarray, u: np.ndarray, c2: np.ndarray, s2: np.ndarray, s
     for a coherent polarization, is debiased as one component.  Elsewhere the amplitude
     ``hypot(q, u)`` is debiased as before (:func:`_debias`).  Returns (H, W, C) float32 >= 0.
     """
+    xp = namespace(q)
     par = q * c2 + u * s2
     orth = u * c2 - q * s2
-    axis = np.abs(smoothed) > _COHERENT_KSIG * reduction * sig
-    known = np.hypot(par, _debias(np.abs(orth), sig, how, components=1))
-    return np.where(axis, known, _debias(np.hypot(q, u), sig, how)).astype(np.float32)
+    axis = abs(smoothed) > _COHERENT_KSIG * reduction * sig
+    known = xp.hypot(par, _debias(abs(orth), sig, how, components=1))
+    return xp.astype(xp.where(axis, known, _debias(xp.hypot(q, u), sig, how)), xp.float32)

@@ -38,6 +38,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from polcam import _imageops
+from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.separation._clipping import declipped, inpaint
 from polcam.separation._illuminant import _SATURATED, _plane_basis, estimate_illuminant
@@ -72,6 +74,7 @@ DEFAULTS: dict[str, Any] = {
                                  # unless "off", the colour prior's removal is shrunk by the noise too
     "declip": True,              # rebuild clipped samples from the other angles (S0 identity, shared AoLP)
     "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"
+    "device": None,              # None: numpy and OpenCV; "cpu", "cuda", ...: PyTorch on that device (torch extra)
 }
 
 
@@ -104,6 +107,13 @@ def _check(opts: dict[str, Any]) -> None:
     hb = opts["hue_bins"]
     if isinstance(hb, bool) or not isinstance(hb, (int, np.integer)) or not 4 <= hb <= 360:
         raise MethodError(f"polarized-residual: hue_bins={hb!r}: expected an integer in [4, 360]")
+    dev = opts["device"]
+    if dev is not None:
+        if not isinstance(dev, str):
+            raise MethodError(f"polarized-residual: device={dev!r}: expected None (numpy) or a torch device name")
+        from polcam.separation.tensor.torch_backend import check_device
+
+        check_device(dev)
     g = opts["illuminant"]
     if g is not None:
         arr = np.asarray(g, dtype=np.float64).reshape(-1)
@@ -170,19 +180,49 @@ def stages(stack: np.ndarray, **options: Any) -> dict[str, np.ndarray]:
     return keep
 
 
-def _separate(stack: np.ndarray, options: dict[str, Any],
-              keep: dict[str, np.ndarray] | None) -> tuple[np.ndarray, dict[str, Any]]:
+def _separate(stack: Any, options: dict[str, Any],
+              keep: dict[str, Any] | None) -> tuple[Any, dict[str, Any]]:
     """:func:`separate_polarized_residual`; with ``keep`` (a dict), the step layers go into it."""
     unknown = set(options) - set(DEFAULTS)
     if unknown:
         raise MethodError(f"polarized-residual: unknown option(s) {', '.join(sorted(unknown))}")
     opts = {**DEFAULTS, **options}
     _check(opts)
-    s = np.asarray(stack, dtype=np.float32)
+    s, host = _on_device(stack, opts["device"])
     if s.ndim == 3 and s.shape[0] == 4:
-        return _mono(s, opts, keep)
-    if s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
-        raise MethodError(f"polarized-residual: stack of shape {s.shape}: expected (4, H, W, 3) or (4, H, W)")
+        diffuse, info = _mono(s, opts, keep)
+    elif s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
+        raise MethodError(f"polarized-residual: stack of shape {tuple(s.shape)}: expected (4, H, W, 3) or (4, H, W)")
+    else:
+        diffuse, info = _colour(s, opts, keep)
+    if host:
+        xp = namespace(s)
+        diffuse = xp.to_numpy(diffuse)
+        if keep is not None:
+            for k in keep:
+                keep[k] = xp.to_numpy(keep[k])
+    return diffuse, info
+
+
+def _on_device(stack: Any, device: str | None) -> tuple[Any, bool]:
+    """The stack as float32 where it is computed, and whether the result goes back to numpy.
+
+    A ``torch.Tensor`` is computed on its own device (and the result stays there); a numpy array
+    with ``device`` set is copied to that torch device and the result comes back as numpy.
+    """
+    if namespace(stack).name == "torch":
+        return stack.to(namespace(stack).float32), False
+    s = np.asarray(stack, dtype=np.float32)
+    if device is None:
+        return s, False
+    import torch
+
+    return torch.as_tensor(np.ascontiguousarray(s), device=torch.device(device)), True
+
+
+def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[Any, dict[str, Any]]:
+    """The colour path of :func:`_separate` on a (4, H, W, 3) float32 stack (numpy or torch)."""
+    xp = namespace(s)
     h, w = s.shape[1:3]
     measured = s.mean(axis=0)
     clipped_any = (s >= _SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
@@ -208,9 +248,10 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
         eff = est.efficiency if est.source == "calibration" else np.ones(3)
         source = est.source
     g = (g / g.mean()).astype(np.float32)
+    gx = xp.asarray(g, like=s)                              # the same (3,) float32 where the stack is
     if not np.all(eff == 1):
-        q = q / eff.astype(np.float32)
-        u = u / eff.astype(np.float32)
+        q = q / xp.asarray(eff.astype(np.float32), like=s)
+        u = u / xp.asarray(eff.astype(np.float32), like=s)
     sig = _stokes_noise(s, ic)
 
     # 1. coherent polarization: Stokes components smoothed over a few pixels (demosaicing and noise
@@ -218,66 +259,66 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
     #    common axis and the signed amplitude of every channel along it
     side = max(h, w)
     k_small = _odd(max(3.0, side / 200))
-    qs = cv2.GaussianBlur(q, (k_small, k_small), 0)
-    us = cv2.GaussianBlur(u, (k_small, k_small), 0)
-    qq = (qs / g).sum(axis=-1)
-    uu = (us / g).sum(axis=-1)
-    nn = np.hypot(qq, uu)
+    qs = _imageops.gaussian(q, k_small)
+    us = _imageops.gaussian(u, k_small)
+    qq = (qs / gx).sum(axis=-1)
+    uu = (us / gx).sum(axis=-1)
+    nn = xp.hypot(qq, uu)
     safe = nn > 0
-    c2 = np.where(safe, qq / np.where(safe, nn, 1), 1.0)[..., None]
-    s2 = np.where(safe, uu / np.where(safe, nn, 1), 0.0)[..., None]
+    c2 = xp.where(safe, qq / xp.where(safe, nn, 1.0), 1.0)[..., None]
+    s2 = xp.where(safe, uu / xp.where(safe, nn, 1.0), 0.0)[..., None]
     amp = qs * c2 + us * s2                                 # (H, W, 3) signed
     amp_px = q * c2 + u * s2                                # the same, unsmoothed (the pixel's own colours)
     # the polarized amplitude with the noise's bias removed: unbiased along the axis where the smoothed
     # amplitude fixes it, shrunk by the noise elsewhere (_polarization_noise._axis_debias)
     if opts["noise"] == "off":
-        isv = np.hypot(q, u)
+        isv = xp.hypot(q, u)
     else:
         isv = _axis_debias(q, u, c2, s2, amp, sig, _reduction(k_small), opts["noise"])
-    imin = np.maximum(ic - isv, 0.0)
+    imin = xp.maximum(ic - isv, 0.0)
     # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
     # colour demosaicing's polarization errors differ between channels and partly cancel in it
-    a_coh = (nn / 3.0).astype(np.float32)
+    a_coh = xp.astype(nn / 3.0, xp.float32)
 
     # 2. polarized specular light: the least multiple a of G that covers every channel's amplitude
     #    (so diffuse <= Imin with one specular colour); where the amplitudes are better explained by
     #    A = alpha G + beta e with alpha, beta of opposite signs (a diffuse part of colour e polarized
     #    perpendicular to the specular), the specular part is |alpha| G and the diffuse keeps |beta| e.
     gg = float(g @ g)
-    amp_g = amp @ g
+    amp_g = amp @ gx
     along = amp_g / gg
-    cover = (isv / g).max(axis=-1)
+    cover = xp.amax(isv / gx, axis=-1)
     esum = imin.sum(axis=-1, keepdims=True)
-    e = np.where(esum > 1e-6, imin / np.maximum(esum, 1e-6), g / g.sum())
-    a = cover.astype(np.float32)
-    b = np.zeros_like(a)
+    e = xp.where(esum > 1e-6, imin / xp.maximum(esum, 1e-6), gx / g.sum())
+    a = xp.astype(cover, xp.float32)
+    b = xp.zeros(a.shape, like=a)
     if opts["diffuse_polarization"]:
-        off = np.linalg.norm(amp - along[..., None] * g, axis=-1)   # what G alone leaves unexplained
-        noise = float(np.median(off))
-        ge = e @ g
+        off = xp.vnorm(amp - along[..., None] * gx, axis=-1)   # what G alone leaves unexplained
+        noise = float(xp.median(off))
+        ge = e @ gx
         ee = (e * e).sum(axis=-1)
         det = gg * ee - ge * ge
         well = det > (0.2 ** 2) * gg * ee                  # e far from G's colour (sin > 0.2)
         # the decomposition from the pixel's own amplitudes: smoothing mixes the colours of neighbouring
         # pixels, which near occluding contours (where diffuse polarization is strongest) differ most
-        dsafe = np.where(well, det, 1.0)
+        dsafe = xp.where(well, det, 1.0)
 
-        def fit(xg: np.ndarray, xe: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        def fit(xg: Any, xe: Any) -> tuple[Any, Any, Any]:
             # per pixel, least squares x = alpha G + beta e from x.G and x.e; and whether the diffuse
             # colour's term dominates, |beta| |e| > |alpha| |G|
             al = (ee * xg - ge * xe) / dsafe
             be = (gg * xe - ge * xg) / dsafe
-            return al, be, np.abs(be) * np.sqrt(ee) > np.abs(al) * np.sqrt(gg)
+            return al, be, abs(be) * xp.sqrt(ee) > abs(al) * np.sqrt(gg)
 
-        ga = amp_px @ g
+        ga = amp_px @ gx
         al, be, dom = fit(ga, (amp_px * e).sum(axis=-1))
         # significant: beyond five times the typical misfit, 1/255 and 1 % of the pixel's intensity
-        sig_off = off > 5.0 * noise + np.maximum(1.0 / 255, 0.01 * np.linalg.norm(ic, axis=-1))
+        sig_off = off > 5.0 * noise + xp.maximum(0.01 * xp.vnorm(ic, axis=-1), 1.0 / 255)
         # and explained: what G leaves of the pixel's amplitudes lies along its own body colour e (the
         # two-colour fit leaves under _DIFFUSE_FIT of it); demosaicing's false polarization (one
         # channel's interpolation error, a neighbour's colour at an edge) points elsewhere
-        off_px = np.linalg.norm(amp_px - (ga / gg)[..., None] * g, axis=-1)
-        misfit = np.linalg.norm(amp_px - al[..., None] * g - be[..., None] * e, axis=-1)
+        off_px = xp.vnorm(amp_px - (ga / gg)[..., None] * gx, axis=-1)
+        misfit = xp.vnorm(amp_px - al[..., None] * gx - be[..., None] * e, axis=-1)
         sig_off &= misfit < _DIFFUSE_FIT * off_px
         # also where the diffuse colour's term dominates the amplitudes (dom: a polarized diffuse part
         # with little or no specular light, e.g. near occluding contours): only a G term of the opposite
@@ -285,151 +326,129 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
         # and physically possible: a diffuse surface's degree of polarization stays below 0.5 (Atkinson &
         # Hancock 2006: at most ~0.53 at grazing view for n = 1.8); a larger |beta| e comes from a misfit
         # (opposite-signed alpha and beta cancelling each other on strongly polarized highlights)
-        a_c = np.where(al * be < 0, np.abs(al), 0.0)
-        plaus = (np.abs(be)[..., None] * e
-                 <= _MAX_DIFFUSE_DOLP * np.maximum(ic - a_c[..., None] * g, 0.0) + 1.0 / 255).all(axis=-1)
+        a_c = xp.where(al * be < 0, abs(al), 0.0)
+        plaus = (abs(be)[..., None] * e
+                 <= _MAX_DIFFUSE_DOLP * xp.maximum(ic - a_c[..., None] * gx, 0.0) + 1.0 / 255).all(axis=-1)
         take = well & sig_off & ((al * be < 0) | dom) & plaus
-        a = np.where(take, np.where(al * be < 0, np.abs(al), 0.0), a).astype(np.float32)
-        b = np.where(take, np.abs(be), 0.0).astype(np.float32)
+        a = xp.astype(xp.where(take, xp.where(al * be < 0, abs(al), 0.0), a), xp.float32)
+        b = xp.astype(xp.where(take, abs(be), 0.0), xp.float32)
         # for step 3, only the specular part marks a highlight: where the smoothed amplitudes' diffuse-
         # colour term dominates and what G leaves of them is beyond _COHERENT_KSIG of its noise (a
         # surface's own coherent polarized light, as near occluding contours), the G term |alpha| alone
         # counts
         al_s, _, dom_s = fit(amp_g, (amp * e).sum(axis=-1))
-        own = well & dom_s & (off > _COHERENT_KSIG * _reduction(k_small) * np.sqrt((sig * sig).sum(axis=-1)))
-        a_coh = np.where(own, np.minimum(np.abs(al_s), a_coh), a_coh).astype(np.float32)
-    ub = np.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)
+        own = well & dom_s & (off > _COHERENT_KSIG * _reduction(k_small) * xp.sqrt((sig * sig).sum(axis=-1)))
+        a_coh = xp.astype(xp.where(own, xp.minimum(abs(al_s), a_coh), a_coh), xp.float32)
+    ub = xp.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)
     # the bound is met by more of the one specular colour, not by clipping channels one by one (which
     # would give the specular layer the colours of the channels' polarization errors)
-    a = np.maximum(a, ((ic - ub) / g).max(axis=-1))
-    a = np.minimum(a, (ic / g).min(axis=-1))                # one specular colour: never more than the pixel has
-    resid = np.clip(ic - a[..., None] * g, 0.0, ub)         # polarized specular light removed
+    a = xp.maximum(a, xp.amax((ic - ub) / gx, axis=-1))
+    a = xp.minimum(a, xp.amin(ic / gx, axis=-1))            # one specular colour: never more than the pixel has
+    resid = xp.clip(ic - a[..., None] * gx, 0.0, ub)        # polarized specular light removed
     if keep is not None:
-        keep.update(imin=imin.astype(np.float32), polarized_removed=resid.astype(np.float32))
+        keep.update(imin=xp.astype(imin, xp.float32), polarized_removed=xp.astype(resid, xp.float32))
 
     # 3. where coherent polarized specular light is (highlights; a_coh is specular only, step 2)
     lum = ic.mean(axis=-1)
     floor, a_eff, lum_s, gate = _coherent_gate(a_coh, lum, k_small, float(opts["polarized_threshold"]),
                                                float(g.mean()))
-    spec = a_eff * float(g.mean()) > np.maximum(opts["polarized_threshold"] * lum_s, 1.0 / 255)
+    spec = a_eff * float(g.mean()) > xp.maximum(opts["polarized_threshold"] * lum_s, 1.0 / 255)
     k_ctx = _odd(opts["context"] * side)
 
     # 4. hue and saturation of the residual around the illuminant point of the chromaticity plane
     rsum = resid.sum(axis=-1)
     lit = rsum > 3.0 / 255
-    chroma = resid / np.maximum(rsum, 1e-6)[..., None]
-    v = (chroma - g / g.sum()) @ _plane_basis().T.astype(np.float32)  # (H, W, 2)
-    sat = np.hypot(v[..., 0], v[..., 1]).astype(np.float32)
-    sat = np.where(lit, sat, 0.0).astype(np.float32)
-    hue = np.arctan2(v[..., 1], v[..., 0])
+    chroma = resid / xp.maximum(rsum, 1e-6)[..., None]
+    v = (chroma - gx / g.sum()) @ xp.asarray(_plane_basis().T.astype(np.float32), like=s)  # (H, W, 2)
+    sat = xp.astype(xp.hypot(v[..., 0], v[..., 1]), xp.float32)
+    sat = xp.astype(xp.where(lit, sat, 0.0), xp.float32)
+    hue = xp.arctan2(v[..., 1], v[..., 0])
     nb = int(opts["hue_bins"])
-    hbin = np.floor((hue + np.pi) / (2 * np.pi) * nb).astype(np.int32) % nb
+    hbin = xp.astype(xp.floor((hue + np.pi) / (2 * np.pi) * nb), xp.index) % nb
     # median filters: robust to colour noise without mixing the colours of neighbouring materials
     big = min(h, w) >= 5
-    sat_m = cv2.medianBlur(sat, 5) if big else sat
-    sat = cv2.medianBlur(sat, 3) if big else sat
-    kernel = np.ones((k_ctx, k_ctx), np.uint8)
-    sat_d = np.zeros_like(sat)
+    sat_m = _imageops.median(sat, 5) if big else sat
+    sat = _imageops.median(sat, 3) if big else sat
+    sat_d = xp.zeros(sat.shape, like=sat)
     per_bin = []
     for k in range(nb):
         m = hbin == k
-        per_bin.append(cv2.dilate(np.where(m, sat_m, 0.0).astype(np.float32), kernel) if m.any() else None)
+        per_bin.append(_imageops.dilate(xp.astype(xp.where(m, sat_m, 0.0), xp.float32), k_ctx)
+                       if bool(m.any()) else None)
     for k in range(nb):
         m = hbin == k
-        if not m.any():
+        if not bool(m.any()):
             continue
-        best = np.zeros(int(m.sum()), np.float32)
+        best = xp.zeros((int(m.sum()),), like=sat)
         for j in (k - 1, k, k + 1):   # neighbouring hues too: noise moves a pixel's hue a little
             pb = per_bin[j % nb]
             if pb is not None:
-                best = np.maximum(best, pb[m])
+                best = xp.maximum(best, pb[m])
         sat_d[m] = best
     coloured = (sat_d > opts["min_saturation"]) & (sat > 0.5 * opts["min_saturation"]) & lit
-    share_spec = np.where(coloured, 1.0 - np.clip(sat / np.maximum(sat_d, 1e-6), 0.0, 1.0), 0.0)
+    share_spec = xp.where(coloured, 1.0 - xp.clip(sat / xp.maximum(sat_d, 1e-6), 0.0, 1.0), 0.0)
     r_col = share_spec * rsum / float(g.sum())              # residual specular, in units of G
 
     # 5. the unpolarized residual is k times the polarized specular light, with k (the Fresnel ratio
     #    (1 - rho_s) / rho_s) measured on coloured highlights and smoothed over the neighbourhood:
     #    achromatic pixels take the k of the coloured highlights around them (or of the image)
-    a_pix = np.minimum(a_eff, a)                            # coherent, and no more than the pixel's own
+    a_pix = xp.minimum(a_eff, a)                            # coherent, and no more than the pixel's own
     # only where coherent polarized light marks a highlight (step 3's gate: weakly polarized white
     # surfaces stay diffuse)
     # not where a sample is clipped: that pixel's colour (and so its specular share) is not measured, and
     # a clipped channel makes the residual look paler, which overstated k
     rel = coloured & spec & (a_pix > 1.0 / 255) & ~clipped_any
-    num_p = np.where(rel, np.minimum(r_col, float(opts["max_ratio"]) * a_pix), 0.0).astype(np.float32)
-    den_p = np.where(rel, a_pix, 0.0).astype(np.float32)
+    num_p = xp.astype(xp.where(rel, xp.minimum(r_col, float(opts["max_ratio"]) * a_pix), 0.0), xp.float32)
+    den_p = xp.astype(xp.where(rel, a_pix, 0.0), xp.float32)
     if int(rel.sum()) >= 20:
         ratio = float(num_p.sum() / den_p.sum())
         ratio_source = "coloured highlights"
     else:  # no coloured highlight: the highlights' spatial profile decides (as for mono stacks)
-        ratio = _gradient_ratio((imin / g).mean(axis=-1).astype(np.float32), (a_pix * gate).astype(np.float32),
-                                float(opts["max_ratio"]))
+        ratio = _gradient_ratio(xp.astype((imin / gx).mean(axis=-1), xp.float32),
+                                xp.astype(a_pix * gate, xp.float32), float(opts["max_ratio"]))
         ratio_source = "gradients"
-    num = cv2.boxFilter(num_p, -1, (k_ctx, k_ctx), normalize=False)
-    den = cv2.boxFilter(den_p, -1, (k_ctx, k_ctx), normalize=False)
-    k_loc = np.where(den > 1e-3 * max(float(den.max()), 1e-12), num / np.maximum(den, 1e-12), ratio)
+    num = _imageops.box(num_p, k_ctx, normalize=False)
+    den = _imageops.box(den_p, k_ctx, normalize=False)
+    k_loc = xp.where(den > 1e-3 * max(float(den.max()), 1e-12), num / xp.maximum(den, 1e-12), ratio)
     r = gate * k_loc * a_pix
-    r = np.minimum(r, (resid / g).min(axis=-1))             # diffuse >= 0 in every channel
-    diffuse = np.clip(resid - r[..., None] * g, 0.0, ub)
+    r = xp.minimum(r, xp.amin(resid / gx, axis=-1))         # diffuse >= 0 in every channel
+    diffuse = xp.clip(resid - r[..., None] * gx, 0.0, ub)
     if keep is not None:
-        keep["ratio_removed"] = diffuse.astype(np.float32)
+        keep["ratio_removed"] = xp.astype(diffuse, xp.float32)
     if opts["residual_model"] == "shen13":
         # coloured pixels: Shen & Zheng's (2013) specular-free clustering applied to the residual only,
         # in the illuminant-normalised space (where the residual specular light is white), never
         # above the residual; achromatic pixels keep the polarization-decided layer above (a ramp
         # over the locally averaged residual's saturation from min_saturation to twice it)
-        norm = resid / g
+        norm = resid / gx
         peak = float(norm.max())
         if peak > 0:
-            sf = _specular_free(np.clip(norm / peak, 0.0, 1.0).astype(np.float64), 3 * k_small) * peak * g
-            sf = np.clip(sf, 0.0, resid)
+            sf = _specular_free(xp.astype(xp.clip(norm / peak, 0.0, 1.0), xp.float64), 3 * k_small) * peak * gx
+            sf = xp.clip(sf, 0.0, resid)
             ms = float(opts["min_saturation"])
             # the saturation of the locally averaged layer of step 5 (the specular light that polarization
             # measured already removed, so a highlight's white light does not make a coloured material
             # look achromatic): colour noise (demosaicing) averages out
             kw = _odd(3 * k_small)
-            rb = cv2.blur(diffuse, (kw, kw))
-            cb = rb / np.maximum(rb.sum(axis=-1, keepdims=True), 1e-6) - g / g.sum()
-            sat_w = np.linalg.norm(cb, axis=-1)
-            wgt = np.clip((sat_w - ms) / ms, 0.0, 1.0)
+            rb = _imageops.box(diffuse, kw)
+            cb = rb / xp.maximum(rb.sum(axis=-1, keepdims=True), 1e-6) - gx / g.sum()
+            sat_w = xp.vnorm(cb, axis=-1)
+            wgt = xp.clip((sat_w - ms) / ms, 0.0, 1.0)
             # and only on coloured materials: the most saturated residual of the pixel's hue nearby
             # (step 4's sat_d, the material's body colour) ramps the prior in from min_saturation to
             # twice it, so a weakly coloured material is decided by polarization, not by colour
-            wgt = wgt * np.clip((sat_d - ms) / ms, 0.0, 1.0)
+            wgt = wgt * xp.clip((sat_d - ms) / ms, 0.0, 1.0)
             if ratio_source == "coloured highlights":
                 # near polarized highlights whose measured k is small, their specular light was almost
                 # all polarized and step 2 removed it: the colour prior is weighted down there
-                near = cv2.blur(gate.astype(np.float32), (k_ctx, k_ctx))
-                wgt = wgt * (1.0 - near * (1.0 - np.clip(k_loc / _PRIOR_K, 0.0, 1.0)))
+                near = _imageops.box(xp.astype(gate, xp.float32), k_ctx)
+                wgt = wgt * (1.0 - near * (1.0 - xp.clip(k_loc / _PRIOR_K, 0.0, 1.0)))
             wgt = wgt[..., None]
             diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig,
                                                      smooth=k_small)
     if keep is not None:
-        keep["prior_removed"] = diffuse.astype(np.float32)
-    # saturated pixels (a channel at the white level in all four angles): that channel's polarization
-    # sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
-    # is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
-    # specular colour allows
-    sat_px = measured.max(axis=-1) >= _SATURATED                   # a channel clipped at all four angles
-    if sat_px.any():
-        # only clipped highlights: a clipped region at least 30 % of whose unclipped border (a 2-pixel
-        # ring) shows coherent polarized specular light (step 3); an overexposed diffuse surface has
-        # none around it and is left as measured
-        n_cc, lab = cv2.connectedComponents(sat_px.astype(np.uint8), connectivity=8)
-        lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
-        ring = (lab_d > 0) & ~sat_px
-        hits = np.bincount(lab_d[ring], weights=spec[ring].astype(np.float64), minlength=n_cc)
-        tot = np.bincount(lab_d[ring], minlength=n_cc)
-        keep = hits >= 0.3 * np.maximum(tot, 1)
-        keep[0] = False
-        sat_px = keep[lab]
-    if 0 < int(sat_px.sum()) < sat_px.size // 2:
-        # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
-        # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
-        fill = inpaint(diffuse, sat_px)
-        t = ((diffuse - fill) @ g) / float(g @ g)
-        diffuse = np.where(sat_px[..., None], np.clip(diffuse - t[..., None] * g, 0.0, ic), diffuse)
+        keep["prior_removed"] = xp.astype(diffuse, xp.float32)
+    diffuse = _fill_clipped(diffuse, measured, ic, spec, gx)
     info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor}
@@ -437,15 +456,52 @@ def _separate(stack: np.ndarray, options: dict[str, Any],
         info["polarized_colour"] = [float(x) for x in est.polarized]
     # never more than was measured (declipping raises Ic where samples were clipped): lowered by the
     # least multiple of the one specular colour that brings every channel under the measurement
-    over = ((diffuse - measured) / g).max(axis=-1)
-    diffuse = np.clip(diffuse - np.maximum(over, 0.0)[..., None] * g, 0.0, measured)
-    return diffuse.astype(np.float32), info
+    over = xp.amax((diffuse - measured) / gx, axis=-1)
+    diffuse = xp.clip(diffuse - xp.maximum(over, 0.0)[..., None] * gx, 0.0, measured)
+    return xp.astype(diffuse, xp.float32), info
 
 
-def _specular_free(image: np.ndarray, smooth: float) -> np.ndarray:
+def _fill_clipped(diffuse: Any, measured: Any, ic: Any, spec: Any, g: Any) -> Any:
+    """Step 7: clipped highlights filled from their neighbours' diffuse by a multiple of ``g``.
+
+    Saturated pixels (a channel at the white level in all four angles): that channel's polarization
+    sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
+    is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
+    specular colour allows.  Only clipped highlights: a clipped region at least 30 % of whose
+    unclipped border (a 2-pixel ring) shows coherent polarized specular light (``spec``, step 3);
+    an overexposed diffuse surface has none around it and is left as measured.  The labelling and
+    the fast marching are sequential and run on the host (numpy and OpenCV); a torch array's
+    masks and layer are copied there and the filled layer back, only when a pixel is clipped.
+    """
+    xp = namespace(diffuse)
+    sat_px = xp.amax(measured, axis=-1) >= _SATURATED       # a channel clipped at all four angles
+    if not bool(sat_px.any()):
+        return diffuse
+    sat_h = xp.to_numpy(sat_px)
+    spec_h = xp.to_numpy(spec)
+    n_cc, lab = cv2.connectedComponents(sat_h.astype(np.uint8), connectivity=8)
+    lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
+    ring = (lab_d > 0) & ~sat_h
+    hits = np.bincount(lab_d[ring], weights=spec_h[ring].astype(np.float64), minlength=n_cc)
+    tot = np.bincount(lab_d[ring], minlength=n_cc)
+    highlight = hits >= 0.3 * np.maximum(tot, 1)
+    highlight[0] = False
+    sat_h = highlight[lab]
+    if not 0 < int(sat_h.sum()) < sat_h.size // 2:
+        return diffuse
+    # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
+    # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
+    fill = xp.asarray(inpaint(xp.to_numpy(diffuse), sat_h), like=diffuse)
+    sat_px = xp.asarray(sat_h, like=diffuse)
+    t = ((diffuse - fill) @ g) / float(g @ g)
+    return xp.where(sat_px[..., None], xp.clip(diffuse - t[..., None] * g, 0.0, ic), diffuse)
+
+
+def _specular_free(image: Any, smooth: float) -> Any:
     """Shen & Zheng's (2013) specular-free image, its clusters' intensity ratios smoothed in the image.
 
-    ``image`` is (H, W, 3) float64 in [0, 1]; returns (H, W, 3) float32 in [0, image].  Each
+    ``image`` is (H, W, 3) float64 in [0, 1] (numpy or torch); returns (H, W, 3) float32 in
+    [0, image], of the same kind.  Each
     cluster's ratio ``Q`` (:func:`polcam.separation.shen13.cluster_ratios`, the paper's defaults) is
     a constant of its material, but the hard clustering puts the pixels of one smoothly shaded,
     weakly coloured material on both sides of a cluster boundary, and two ratios side by side make
@@ -457,35 +513,37 @@ def _specular_free(image: np.ndarray, smooth: float) -> np.ndarray:
     from polcam.filters import joint_bilateral
     from polcam.separation.shen13 import cluster_ratios, ratio_specular
 
+    xp = namespace(image)
     q_map, _ = cluster_ratios(image)
-    ok = np.isfinite(q_map)
-    if ok.any():
+    ok = xp.isfinite(q_map)
+    if bool(ok.any()):
         # on a grid f times coarser (f = smooth / 6, as the filter's own grid): the ratio map is
         # piecewise constant, and the filter's cost at full resolution was a second a frame
         h, w = ok.shape
         f = max(1, int(smooth // 6))
         size = (max(1, -(-w // f)), max(1, -(-h // f)))
-        area = cv2.INTER_AREA
-        wt = cv2.resize(ok.astype(np.float32), size, interpolation=area)
-        qw = cv2.resize(np.where(ok, q_map, 0.0).astype(np.float32), size, interpolation=area)
-        guide = cv2.resize(image.mean(axis=-1).astype(np.float32), size, interpolation=area)
-        q_s = joint_bilateral(qw / np.maximum(wt, 1e-12), guide, sigma_spatial=float(smooth) / f,
+        f32 = xp.float32
+        wt = _imageops.resize(xp.astype(ok, f32), size, interpolation="area")
+        qw = _imageops.resize(xp.astype(xp.where(ok, q_map, 0.0), f32), size, interpolation="area")
+        guide = _imageops.resize(xp.astype(image.mean(axis=-1), f32), size, interpolation="area")
+        q_s = joint_bilateral(qw / xp.maximum(wt, 1e-12), guide, sigma_spatial=float(smooth) / f,
                               sigma_range=0.1 * max(float(guide.max()), 1e-6), weights=wt)
-        q_s = cv2.resize(np.asarray(q_s, np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-        q_map = np.where(ok, q_s.astype(np.float64), np.nan)
-    return np.clip(image - ratio_specular(image, q_map)[..., None], 0.0, image).astype(np.float32)
+        q_s = _imageops.resize(xp.astype(q_s, f32), (w, h), interpolation="linear")
+        q_map = xp.where(ok, xp.astype(q_s, xp.float64), float("nan"))
+    return xp.astype(xp.clip(image - ratio_specular(image, q_map)[..., None], 0.0, image), xp.float32)
 
 
-def _mono(stack: np.ndarray, opts: dict[str, Any],
-          keep: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
     """Mono stacks: remove the polarized light, then k times the coherent polarized light.
 
     Without colour, k (the unpolarized / polarized ratio of the specular light) is chosen so that the
     diffuse layer ``Imin - k a`` carries as little of the highlights' spatial profile as possible:
     least squares of the gradients, ``k = <grad Imin, grad a> / <grad a, grad a>`` over the
-    neighbourhood (docs/algorithm.md), clipped to [0, max_ratio].
+    neighbourhood (docs/algorithm.md), clipped to [0, max_ratio].  ``stack`` is (4, H, W) float32,
+    numpy or torch.
     """
-    s = np.asarray(stack, dtype=np.float32)
+    xp = namespace(stack)
+    s = stack
     h, w = s.shape[1:3]
     measured = s.mean(axis=0)
     if opts["declip"]:
@@ -493,22 +551,22 @@ def _mono(stack: np.ndarray, opts: dict[str, Any],
     ic = s.mean(axis=0)
     q = 0.5 * (s[0] - s[2])
     u = 0.5 * (s[1] - s[3])
-    isv = np.hypot(q, u)
-    imin = np.maximum(ic - isv, 0.0)
+    isv = xp.hypot(q, u)
+    imin = xp.maximum(ic - isv, 0.0)
     side = max(h, w)
     k_small = _odd(max(3.0, side / 200))
-    a_coh = np.hypot(cv2.GaussianBlur(q, (k_small, k_small), 0), cv2.GaussianBlur(u, (k_small, k_small), 0))
+    a_coh = xp.hypot(_imageops.gaussian(q, k_small), _imageops.gaussian(u, k_small))
     floor, a_eff, _, gate = _coherent_gate(a_coh, ic, k_small, float(opts["polarized_threshold"]))
-    a_pix = (np.minimum(a_eff, isv) * gate).astype(np.float32)
+    a_pix = xp.astype(xp.minimum(a_eff, isv) * gate, xp.float32)
     ratio = _gradient_ratio(imin, a_pix, float(opts["max_ratio"]))
-    diffuse = np.clip(imin - ratio * a_pix, 0.0, np.minimum(imin, measured))
+    diffuse = xp.clip(imin - ratio * a_pix, 0.0, xp.minimum(imin, measured))
     if keep is not None:
-        keep["imin"] = imin.astype(np.float32)
-    return diffuse.astype(np.float32), {"residual_ratio": ratio, "polarized_floor": floor}
+        keep["imin"] = xp.astype(imin, xp.float32)
+    return xp.astype(diffuse, xp.float32), {"residual_ratio": ratio, "polarized_floor": floor}
 
 
-def _coherent_gate(a_coh: np.ndarray, lum: np.ndarray, k_small: int, threshold: float,
-                   scale: float = 1.0) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+def _coherent_gate(a_coh: Any, lum: Any, k_small: int, threshold: float,
+                   scale: float = 1.0) -> tuple[float, Any, Any, Any]:
     """Where coherent polarized light marks a highlight (colour and mono paths alike).
 
     ``a_coh`` (H, W) is the smoothed polarized amplitude (times ``scale``, the illuminant's mean
@@ -517,14 +575,15 @@ def _coherent_gate(a_coh: np.ndarray, lum: np.ndarray, k_small: int, threshold: 
     ``lum`` Gaussian-blurred over ``k_small``, and the gate: a ramp from ``threshold`` to twice it
     in the coherent degree of polarization ``scale a_eff / lum_s``, (H, W) in [0, 1].
     """
-    floor = float(np.median(a_coh))
-    a_eff = np.maximum(a_coh - floor, 0.0)
-    lum_s = cv2.GaussianBlur(lum, (k_small, k_small), 0)
-    dop = a_eff * scale / np.maximum(lum_s, 1e-6)
-    return floor, a_eff, lum_s, np.clip((dop - threshold) / threshold, 0.0, 1.0)
+    xp = namespace(a_coh)
+    floor = float(xp.median(a_coh))
+    a_eff = xp.maximum(a_coh - floor, 0.0)
+    lum_s = _imageops.gaussian(lum, k_small)
+    dop = a_eff * scale / xp.maximum(lum_s, 1e-6)
+    return floor, a_eff, lum_s, xp.clip((dop - threshold) / threshold, 0.0, 1.0)
 
 
-def _gradient_ratio(imin: np.ndarray, a_pix: np.ndarray, max_ratio: float) -> float:
+def _gradient_ratio(imin: Any, a_pix: Any, max_ratio: float) -> float:
     """k that removes the highlights' spatial profile from ``imin - k a_pix`` (both (H, W)).
 
     k minimises the total variation of ``Imin - k a`` along a's gradients: the weighted median of the
@@ -532,16 +591,15 @@ def _gradient_ratio(imin: np.ndarray, a_pix: np.ndarray, max_ratio: float) -> fl
     pixels inside highlights and away from dark regions (a silhouette is an edge of both), clipped
     to [0, max_ratio]; 0 with fewer than 20 such gradients.
     """
-    gi = np.concatenate([cv2.Sobel(imin, cv2.CV_32F, 1, 0, ksize=3).ravel(),
-                         cv2.Sobel(imin, cv2.CV_32F, 0, 1, ksize=3).ravel()])
-    ga = np.concatenate([cv2.Sobel(a_pix, cv2.CV_32F, 1, 0, ksize=3).ravel(),
-                         cv2.Sobel(a_pix, cv2.CV_32F, 0, 1, ksize=3).ravel()])
-    inner = cv2.erode(((a_pix > 0) & (imin > 2.0 / 255)).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    use = (np.abs(ga) > 1e-4) & np.concatenate([inner.ravel(), inner.ravel()])
-    if use.sum() < 20:
+    xp = namespace(imin)
+    gi = xp.concatenate([_imageops.sobel(imin, 1, 0).reshape(-1), _imageops.sobel(imin, 0, 1).reshape(-1)])
+    ga = xp.concatenate([_imageops.sobel(a_pix, 1, 0).reshape(-1), _imageops.sobel(a_pix, 0, 1).reshape(-1)])
+    inner = _imageops.erode(xp.astype((a_pix > 0) & (imin > 2.0 / 255), xp.float32), 5) > 0
+    use = (abs(ga) > 1e-4) & xp.concatenate([inner.reshape(-1), inner.reshape(-1)])
+    if int(use.sum()) < 20:
         return 0.0
     rr = gi[use] / ga[use]
-    ww = np.abs(ga[use])
-    order = np.argsort(rr)
-    cw = np.cumsum(ww[order])
-    return float(np.clip(rr[order][np.searchsorted(cw, 0.5 * cw[-1])], 0.0, max_ratio))
+    ww = abs(ga[use])
+    order = xp.argsort(rr)
+    cw = xp.cumsum(ww[order])
+    return float(np.clip(float(rr[order][xp.searchsorted(cw, 0.5 * cw[-1])]), 0.0, max_ratio))

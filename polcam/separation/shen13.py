@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 
+from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.separation._common import (
     as_rgb_image,
@@ -66,43 +67,50 @@ REFERENCE = (
 __all__ = ["REFERENCE", "separate_shen13", "cluster_pseudo_chromaticity", "cluster_ratios", "ratio_specular"]
 
 
-def cluster_pseudo_chromaticity(pseudo: np.ndarray, threshold: float) -> np.ndarray:
+def cluster_pseudo_chromaticity(pseudo: Any, threshold: float) -> Any:
     """Shen & Zheng's clustering of pseudo-chromaticities.
 
     Parameters
     ----------
     pseudo
-        (N, 2) pseudo-chromaticities ``(c_min, c_max)`` in raster order.
+        (N, 2) pseudo-chromaticities ``(c_min, c_max)`` in raster order (numpy, or a
+        ``torch.Tensor`` clustered on its device).
     threshold
         L1 radius of a cluster around its seed.
 
     Returns
     -------
-    numpy.ndarray
+    numpy.ndarray or torch.Tensor
         (N,) int cluster labels 0..K-1, each pixel assigned to the nearest
         cluster mean.
     """
+    xp = namespace(pseudo)
     n = pseudo.shape[0]
-    labels = np.full(n, -1, dtype=np.int64)
-    remaining = np.arange(n)
+    labels = xp.zeros((n,), like=pseudo, dtype=xp.index) - 1
+    remaining = xp.arange(n, like=pseudo)
     k = 0
-    while remaining.size:
+    while remaining.shape[0]:
         seed = pseudo[remaining[0]]
-        near = np.abs(pseudo[remaining] - seed).sum(axis=1) < threshold
+        near = abs(pseudo[remaining] - seed).sum(axis=1) < threshold
         near[0] = True
         labels[remaining[near]] = k
         remaining = remaining[~near]
         k += 1
-    counts = np.bincount(labels, minlength=k).astype(np.float64)
-    means = np.stack(
-        [np.bincount(labels, weights=pseudo[:, j], minlength=k) / counts for j in range(2)], axis=1
-    )
+    means = xp.zeros((k, 2), like=pseudo)
+    counts = xp.zeros((k,), like=pseudo)
+    if xp.name == "numpy":
+        counts = np.bincount(labels, minlength=k).astype(np.float64)
+        means = np.stack([np.bincount(labels, weights=pseudo[:, j], minlength=k) / counts for j in range(2)],
+                         axis=1)
+    else:
+        counts = counts.index_add(0, labels, pseudo.new_ones(n))
+        means = means.index_add(0, labels, pseudo) / counts[:, None]
     # Nearest mean by L1 distance, in chunks to bound memory.
-    out = np.empty(n, dtype=np.int64)
+    out = xp.zeros((n,), like=pseudo, dtype=xp.index)
     chunk = max(1, 2_000_000 // max(k, 1))
     for start in range(0, n, chunk):
-        d = np.abs(pseudo[start:start + chunk, None, :] - means[None]).sum(axis=2)
-        out[start:start + chunk] = np.argmin(d, axis=1)
+        d = abs(pseudo[start:start + chunk, None, :] - means[None]).sum(axis=2)
+        out[start:start + chunk] = xp.argmax(-d, axis=1)
     return out
 
 
@@ -148,60 +156,64 @@ def separate_shen13(
 
 
 def cluster_ratios(
-    image: np.ndarray, *, chroma_threshold: float = 0.3, percentile: float = 0.5
-) -> tuple[np.ndarray, int]:
+    image: Any, *, chroma_threshold: float = 0.3, percentile: float = 0.5
+) -> tuple[Any, int]:
     """Steps 1-4 of :func:`separate_shen13`: each processed pixel's cluster intensity ratio ``Q``.
 
     Parameters
     ----------
     image
-        (H, W, 3) float RGB (checked by the caller).
+        (H, W, 3) float RGB (checked by the caller): numpy, or a ``torch.Tensor`` (computed on
+        its device, float64).
     chroma_threshold, percentile
         As :func:`separate_shen13`.
 
     Returns
     -------
-    q_map : numpy.ndarray
+    q_map : numpy.ndarray or torch.Tensor
         (H, W) float64: ``Q`` of the pixel's cluster; NaN where the pixel is not processed
         (``I_min <= mu``) or its cluster has no reliable ratio.
     clusters : int
         The number of clusters (0 when no pixel is processed).
     """
     i_min = channel_min(image)
+    xp = namespace(i_min)
     i_max = channel_max(image)
     i_range = i_max - i_min
     mu = float(i_min.mean())
     mask = i_min > mu
-    q_map = np.full(image.shape[:2], np.nan)
-    if not mask.any():
+    q_map = xp.zeros(image.shape[:2], like=i_min) + float("nan")
+    if not bool(mask.any()):
         return q_map, 0
 
-    pix = image[mask]
+    pix = xp.asarray(image, dtype=xp.float64)[mask]
     msf = pix - i_min[mask][:, None] + mu
     chroma = safe_divide(msf, channel_sum(msf)[:, None], fill=1.0 / 3.0)
-    pseudo = np.stack([channel_min(chroma), channel_max(chroma)], axis=1)
+    pseudo = xp.stack([channel_min(chroma), channel_max(chroma)], axis=1)
     labels = cluster_pseudo_chromaticity(pseudo, float(chroma_threshold))
     n_clusters = int(labels.max()) + 1
 
     reliable = i_range[mask] > mu
     ratio = safe_divide(i_max[mask], i_range[mask], fill=0.0)
-    q = np.full(n_clusters, np.nan)
+    q = xp.zeros((n_clusters,), like=ratio) + float("nan")
     for k in range(n_clusters):
         r = ratio[(labels == k) & reliable]
-        if r.size:
-            rank = min(int(percentile * r.size), r.size - 1)
-            q[k] = np.partition(r, rank)[rank]
+        if r.shape[0]:
+            rank = min(int(percentile * r.shape[0]), r.shape[0] - 1)
+            # the value of that rank in sorted order (np.partition; torch's kthvalue counts from 1)
+            q[k] = np.partition(r, rank)[rank] if xp.name == "numpy" else r.kthvalue(rank + 1).values
     q_map[mask] = q[labels]
     return q_map, n_clusters
 
 
-def ratio_specular(image: np.ndarray, q_map: np.ndarray) -> np.ndarray:
+def ratio_specular(image: Any, q_map: Any) -> Any:
     """Step 5 of :func:`separate_shen13`: ``m_s / 3 = max(I_max - Q I_range, 0)``, 0 where ``Q`` is NaN.
 
-    ``image`` is (H, W, 3), ``q_map`` (H, W) (:func:`cluster_ratios`, or a filtered copy); returns
-    (H, W) float64.
+    ``image`` is (H, W, 3), ``q_map`` (H, W) (:func:`cluster_ratios`, or a filtered copy), numpy or
+    torch; returns (H, W) float64 of the same kind.
     """
     i_max = channel_max(image)
+    xp = namespace(i_max)
     i_range = i_max - channel_min(image)
-    ok = np.isfinite(q_map)
-    return np.where(ok, np.maximum(i_max - np.where(ok, q_map, 0.0) * i_range, 0.0), 0.0)
+    ok = xp.isfinite(q_map)
+    return xp.where(ok, xp.maximum(i_max - xp.where(ok, q_map, 0.0) * i_range, 0.0), 0.0)

@@ -41,6 +41,21 @@ def test_another_method_is_timed_alone():
         run(sizes=(32,), frame=False, isolate=False, progress=False, method="no-such")
     with pytest.raises(MethodError, match="tensor method's options"):
         main(["--method", "imin", "--tol", "1e-3", "--no-frame", "--sizes", "16"])
+    with pytest.raises(MethodError, match="'imin' has no PyTorch backend"):
+        main(["--method", "imin", "--device", "cpu", "--no-frame", "--sizes", "16"])
+
+
+def test_polarized_residual_on_a_device():
+    torch = pytest.importorskip("torch")
+    dev = "cuda" if torch.cuda.is_available() else "cpu"
+    (row,) = run(sizes=(32,), scenes=("Bunny4",), frame=False, isolate=False, progress=False,
+                 method="polarized-residual", options={"device": dev})
+    (ref,) = run(sizes=(32,), scenes=("Bunny4",), frame=False, isolate=False, progress=False,
+                 method="polarized-residual")
+    assert row.options == {"device": dev} and row.solver == "polarized-residual"
+    assert row.device == (torch.cuda.get_device_name() if dev == "cuda" else "cpu")
+    # the same layer on either backend
+    assert row.psnr == pytest.approx(ref.psnr, abs=0.01)
 
 
 def test_measure_reports_the_options_it_ran_with(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from polcam.separation._clipping import declipped, inpaint
 
@@ -50,3 +51,21 @@ def test_inpaint_fills_a_hole_from_a_smooth_surrounding():
     err = np.abs(out[mask] - img[mask]).mean()
     err_const = np.abs(img[ring].mean(axis=0) - img[mask]).mean()
     assert err < 0.5 * err_const
+
+
+def test_declipping_on_torch_is_the_same(dev):
+    torch = pytest.importorskip("torch")
+    rng = np.random.default_rng(5)
+    t = np.deg2rad([0.0, 45.0, 90.0, 135.0])
+    phi = rng.uniform(0, np.pi, (24, 20, 1))
+    ic = rng.uniform(0.5, 0.95, (24, 20, 3))
+    amp = rng.uniform(0.0, 0.4, (24, 20, 3))
+    true = (ic[None] + amp[None] * np.cos(2 * t[:, None, None, None] - 2 * phi[None])).astype(np.float32)
+    st = np.minimum(true, 1.0)
+    counts = (st >= 0.98).sum(axis=0)
+    assert (counts == 1).any() and (counts == 2).any()               # both rebuilding rules are used
+    want = declipped(st)
+    got = declipped(torch.as_tensor(st, device=dev))
+    assert got.device.type == dev.split(":")[0]
+    np.testing.assert_allclose(got.cpu().numpy(), want, rtol=0, atol=1e-6)
+    assert np.abs(want - st).max() > 0.01

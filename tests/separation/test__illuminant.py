@@ -170,3 +170,21 @@ def test_weak_evidence_keeps_the_white_balance():
     est = estimate_illuminant(_weak_highlights(g, 0))
     assert est.source == "polarized"
     np.testing.assert_allclose(est.colour, g / g.mean(), atol=0.03)
+
+
+def test_estimate_on_torch_is_the_same(dev):
+    torch = pytest.importorskip("torch")
+    eff = np.array([0.5, 0.7, 1.0])
+    rng = np.random.default_rng(2)
+    cases = [_stack(np.array([1.2, 1.0, 0.8]), diffuse=(0.2, 0.2, 0.2), rho=1.0), _stack((1, 1, 1), eff=eff),
+             np.clip(_stack((1, 1, 1), rho=0.05) + rng.normal(0, 0.01, (4,) + _stack((1, 1, 1)).shape[1:]), 0, 1)]
+    for st in cases:
+        want = estimate_illuminant(st)
+        got = estimate_illuminant(torch.as_tensor(st, device=dev))
+        assert got.source == want.source
+        for a, b in zip(got, want):
+            if isinstance(a, np.ndarray):
+                np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(highlight_colour(torch.as_tensor(st, device=dev)), highlight_colour(st),
+                                   rtol=0, atol=1e-6)
+    assert {estimate_illuminant(st).source for st in cases} == {"polarized", "highlights", "white balance"}

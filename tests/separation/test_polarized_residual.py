@@ -463,3 +463,85 @@ def test_colour_prior_on_one_material_is_shen13s():
     ref = separate_shen13(img)[0]
     np.testing.assert_allclose(_specular_free(img, 9), ref, atol=1e-5)
     assert np.abs(img - ref).max() > 0.1                   # and shen13 does remove the highlight here
+
+
+# ---------------------------------------------------------------------------
+# the same method on PyTorch tensors (one implementation over polcam._xp and polcam._imageops)
+# ---------------------------------------------------------------------------
+
+def _torch_cases():
+    """Stacks that take every branch: the colour prior, diffuse polarization, the clipped fill, mono."""
+    from polcam.synth.render import render
+    from polcam.synth.scenes import scene
+
+    d = _scene()
+    h, w = d.shape[:2]
+    spec = 0.35 * (_bump(h, w, 16, 12, 3) + _bump(h, w, 36, 32, 4))
+    rng = np.random.default_rng(7)
+    noisy = np.clip(_stack(d, spec, (1.0, 0.9, 0.8), rho_s=0.4, phi_s=0.3, rho_d=0.05)
+                    + rng.normal(0, 2e-3, (4, h, w, 3)), 0, 1)
+    d2 = np.broadcast_to(np.array([0.6, 0.3, 0.2]), (h, w, 3)).copy()
+    clipped = np.clip(_stack(d2, 0.8 * _bump(h, w, 24, 32, 4), (1, 1, 1), rho_s=0.3, phi_s=0.5), 0, 1)
+    bunny = np.asarray(render(scene("Bunny5"), size=64, seed=1).stack)
+    return {"noisy tinted": (noisy, {}), "clipped": (clipped, {"illuminant": (1, 1, 1)}),
+            "Bunny5": (bunny, {}), "Bunny5 mono": (bunny.mean(axis=-1), {}),
+            "options": (noisy, {"efficiency": (1.0, 0.9, 0.8), "noise": "rice", "residual_model": "hue"})}
+
+
+@pytest.fixture(scope="module")
+def torch_cases():
+    return _torch_cases()
+
+
+def test_torch_matches_numpy(torch_cases, dev):
+    torch = pytest.importorskip("torch")
+    from polcam.separation.polarized_residual import separate_polarized_residual, stages
+
+    for name, (st, opts) in torch_cases.items():
+        want, want_info = separate_polarized_residual(st, **opts)
+        got, got_info = separate_polarized_residual(torch.as_tensor(st, device=dev), **opts)
+        # a tensor in, a float32 tensor out on its device
+        assert isinstance(got, torch.Tensor) and got.device.type == dev.split(":")[0], name
+        assert got.dtype == torch.float32 and tuple(got.shape) == want.shape, name
+        assert got_info.keys() == want_info.keys(), name
+        assert got_info.get("illuminant_source") == want_info.get("illuminant_source"), name
+        assert got_info.get("residual_ratio_source") == want_info.get("residual_ratio_source"), name
+        assert got_info["residual_ratio"] == pytest.approx(want_info["residual_ratio"], rel=1e-4, abs=1e-6), name
+        # float32 sums in another order: equal to a few units of the last place
+        np.testing.assert_allclose(got.cpu().numpy(), want, rtol=0, atol=2e-5, err_msg=name)
+        assert np.abs(want - st.mean(axis=0)).max() > 0.01, name        # something was removed
+    # the step layers too, and device= on a numpy stack gives numpy back
+    st, _ = torch_cases["noisy tinted"]
+    want = stages(st)
+    got = stages(st, device=dev)
+    assert got.keys() == want.keys()
+    for k in want:
+        assert isinstance(got[k], np.ndarray), k
+        np.testing.assert_allclose(got[k], want[k], rtol=0, atol=2e-5, err_msg=k)
+
+
+def test_device_option_through_separate(dev):
+    pytest.importorskip("torch")
+    st, _ = _torch_cases()["noisy tinted"]
+    want = polcam.separate(st, method="polarized-residual")
+    got = polcam.separate(st, method="polarized-residual", device=dev)
+    assert isinstance(got.diffuse, np.ndarray)
+    np.testing.assert_allclose(got.diffuse, want.diffuse, rtol=0, atol=2e-5)
+    np.testing.assert_allclose(got.diffuse + got.specular, st.mean(axis=0), atol=1e-6)
+
+
+def test_bad_device_is_refused():
+    st = _stack(_scene(), np.zeros((48, 64)), (1, 1, 1), rho_s=0.0, phi_s=0.0)
+    with pytest.raises(MethodError, match="device=3"):
+        polcam.separate(st, method="polarized-residual", device=3)
+    try:
+        import torch
+    except ImportError:
+        with pytest.raises(MethodError, match="needs PyTorch"):
+            polcam.separate(st, method="polarized-residual", device="cpu")
+        return
+    with pytest.raises(MethodError, match="not a torch device name"):
+        polcam.separate(st, method="polarized-residual", device="no-such-device")
+    if not torch.cuda.is_available():
+        with pytest.raises(MethodError, match="no CUDA GPU"):
+            polcam.separate(st, method="polarized-residual", device="cuda")

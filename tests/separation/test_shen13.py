@@ -64,3 +64,20 @@ def test_bad_input():
         separate_shen13(np.full((3, 3, 3), 0.5), chroma_threshold=0)
     with pytest.raises(MethodError, match="percentile"):
         separate_shen13(np.full((3, 3, 3), 0.5), percentile=1.5)
+
+
+def test_cluster_ratios_on_torch_are_the_same(dev):
+    torch = pytest.importorskip("torch")
+    from polcam.separation.shen13 import cluster_ratios, ratio_specular
+
+    image, _ = banded_scene()
+    q, n = cluster_ratios(image)
+    qt, nt = cluster_ratios(torch.as_tensor(image, device=dev))
+    assert nt == n >= 2 and qt.device.type == dev.split(":")[0]
+    np.testing.assert_array_equal(np.isnan(qt.cpu().numpy()), np.isnan(q))
+    np.testing.assert_allclose(qt.cpu().numpy(), q, rtol=1e-12, equal_nan=True)
+    np.testing.assert_allclose(ratio_specular(torch.as_tensor(image, device=dev), qt).cpu().numpy(),
+                               ratio_specular(image, q), rtol=0, atol=1e-12)
+    pts = np.random.default_rng(1).uniform(0, 1, (300, 2))
+    np.testing.assert_array_equal(cluster_pseudo_chromaticity(torch.as_tensor(pts, device=dev), 0.3).cpu().numpy(),
+                                  cluster_pseudo_chromaticity(pts, 0.3))
