@@ -372,7 +372,11 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
     sat_d = xp.zeros(sat.shape, like=sat)
     per_bin = []
     for k in range(nb):
-        m = hbin == k
+        # only lit pixels lend their saturation to a hue: an unlit pixel's hue is that of rounding
+        # noise (its residual is ~1e-11), while the median filters give it its lit neighbours'
+        # saturation; a change of 1e-7 in the input moved it to another hue and moved the diffuse
+        # of a whole neighbourhood by up to 0.17 (docs/algorithm.md, ninth round)
+        m = (hbin == k) & lit
         per_bin.append(_imageops.dilate(xp.astype(xp.where(m, sat_m, 0.0), xp.float32), k_ctx)
                        if bool(m.any()) else None)
     for k in range(nb):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from polcam.separation._polarization_noise import _KSIG, _axis_debias, _debias, _prior_removal, _reduction
 
@@ -101,3 +102,37 @@ def test_coherent_prior_removal_is_kept_whole():
     both = _prior_removal(diffuse, noise, sig, smooth=3)
     assert float(both.mean()) <= float(_prior_removal(diffuse, noise, sig).mean()) * 1.05 + 1e-9
     assert float(both.mean()) < 0.2 * float((diffuse - np.minimum(noise, diffuse)).mean())
+
+
+def test_axis_and_coherence_switches_are_continuous():
+    # a smoothed amplitude swept through the axis test's threshold (_COHERENT_KSIG deviations): the
+    # estimate moves from the garrote's to the axis-known one gradually, never by a step (a hard
+    # switch jumped by the whole difference, 0.02 of Imin on a rendered scene, under a 1e-7 change)
+    from polcam.separation._polarization_noise import _COHERENT_KSIG
+
+    sigma, red = 0.01, 0.3
+    n = 2001
+    q = np.full((1, n, 1), 0.012, np.float32)
+    u = np.full((1, n, 1), 0.009, np.float32)
+    sig = np.full((1, n, 1), sigma, np.float32)
+    c2, s2 = np.ones((1, n, 1), np.float32), np.zeros((1, n, 1), np.float32)
+    dev = np.linspace(_COHERENT_KSIG - 1.5, _COHERENT_KSIG + 1.5, n, dtype=np.float32)
+    smoothed = (dev * red * sigma).reshape(1, n, 1)
+    est = _axis_debias(q, u, c2, s2, smoothed, sig, red, "shrink").ravel()
+    garrote = float(_debias(np.hypot(q, u), sig, "shrink").ravel()[0])
+    known = float(np.hypot(q[0, 0, 0], _debias(np.abs(u), sig, "shrink", components=1).ravel()[0]))
+    assert abs(known - garrote) > 0.005                     # the two estimates differ: a step would show
+    assert est[0] == pytest.approx(garrote, abs=1e-7) and est[-1] == pytest.approx(known, abs=1e-7)
+    assert np.abs(np.diff(est)).max() < 4.0 / n * abs(known - garrote)     # a ramp over a third of the sweep
+    # the colour prior's coherent-removal check, swept the same way
+    h = 9
+    var_sig = np.full((h, h, 3), 0.004, np.float32)
+    sd = float(np.sqrt(0.5 * 3 * 0.004**2) * _reduction(3))
+    outs = []
+    for k in np.linspace(_COHERENT_KSIG - 1.5, _COHERENT_KSIG + 1.5, 301):
+        diffuse = np.full((h, h, 3), 0.5, np.float32)
+        sf = diffuse - np.float32(k * sd / np.sqrt(3.0))
+        outs.append(float(_prior_removal(diffuse, sf, var_sig, smooth=3)[4, 4, 0]) / (k * sd / np.sqrt(3.0)))
+    outs = np.array(outs)
+    assert outs[0] < 0.8 and outs[-1] == pytest.approx(1.0, abs=1e-5)
+    assert np.abs(np.diff(outs)).max() < 0.05
