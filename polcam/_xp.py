@@ -113,6 +113,11 @@ class NumpyXP:
     einsum = staticmethod(np.einsum)
     maximum = staticmethod(np.maximum)
     minimum = staticmethod(np.minimum)
+    arctan2 = staticmethod(np.arctan2)
+    cos = staticmethod(np.cos)
+    abs = staticmethod(np.abs)
+    concatenate = staticmethod(np.concatenate)
+    nonzero = staticmethod(np.nonzero)
 
     @staticmethod
     def clamp_min(a: np.ndarray, lo: Any, out: np.ndarray | None = None) -> np.ndarray:
@@ -162,12 +167,6 @@ class NumpyXP:
     @staticmethod
     def tiny(a: np.ndarray) -> float:
         return float(np.finfo(a.dtype).tiny)
-
-    arctan2 = staticmethod(np.arctan2)
-    cos = staticmethod(np.cos)
-    abs = staticmethod(np.abs)
-    concatenate = staticmethod(np.concatenate)
-    nonzero = staticmethod(np.nonzero)
 
     @staticmethod
     def vnorm(a: np.ndarray, axis: int = -1) -> np.ndarray:

@@ -15,7 +15,7 @@ from polcam import _imageops
 from polcam._xp import namespace
 from polcam.separation._illuminant import _SATURATED
 
-__all__ = ["declipped", "inpaint"]
+__all__ = ["declipped", "fill_clipped_highlights", "inpaint"]
 
 
 def declipped(stack: Any) -> Any:
@@ -112,3 +112,43 @@ def inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
         x = np.round(np.clip(img[..., c], 0.0, 1.0) * 65535.0).astype(np.uint16)
         out[..., c] = cv2.inpaint(x, m, radius, cv2.INPAINT_TELEA).astype(np.float32) / 65535.0
     return out
+
+
+def fill_clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, g: Any) -> Any:
+    """``polarized-residual``'s step 7: clipped highlights filled from their neighbours' diffuse by a multiple of ``g``.
+
+    ``diffuse``, ``measured`` (the mean over angles as measured) and ``ic`` (after declipping) are
+    (H, W, 3), ``spec`` (H, W) bool (coherent polarized specular light, step 3), ``g`` the (3,)
+    illuminant; numpy or torch.  Returns the layer, of the same kind.
+
+    Saturated pixels (a channel at the white level in all four angles): that channel's polarization
+    sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
+    is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
+    specular colour allows.  Only clipped highlights: a clipped region at least 30 % of whose
+    unclipped border (a 2-pixel ring) shows coherent polarized specular light (``spec``, step 3);
+    an overexposed diffuse surface has none around it and is left as measured.  The labelling and
+    the fast marching are sequential and run on the host (numpy and OpenCV); a torch array's
+    masks and layer are copied there and the filled layer back, only when a pixel is clipped.
+    """
+    xp = namespace(diffuse)
+    sat_px = xp.amax(measured, axis=-1) >= _SATURATED       # a channel clipped at all four angles
+    if not bool(sat_px.any()):
+        return diffuse
+    sat_h = xp.to_numpy(sat_px)
+    spec_h = xp.to_numpy(spec)
+    n_cc, lab = cv2.connectedComponents(sat_h.astype(np.uint8), connectivity=8)
+    lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
+    ring = (lab_d > 0) & ~sat_h
+    hits = np.bincount(lab_d[ring], weights=spec_h[ring].astype(np.float64), minlength=n_cc)
+    tot = np.bincount(lab_d[ring], minlength=n_cc)
+    highlight = hits >= 0.3 * np.maximum(tot, 1)
+    highlight[0] = False
+    sat_h = highlight[lab]
+    if not 0 < int(sat_h.sum()) < sat_h.size // 2:
+        return diffuse
+    # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
+    # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
+    fill = xp.asarray(inpaint(xp.to_numpy(diffuse), sat_h), like=diffuse)
+    sat_px = xp.asarray(sat_h, like=diffuse)
+    t = ((diffuse - fill) @ g) / float(g @ g)
+    return xp.where(sat_px[..., None], xp.clip(diffuse - t[..., None] * g, 0.0, ic), diffuse)

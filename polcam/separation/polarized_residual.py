@@ -29,19 +29,23 @@ benchmarks behind every choice):
 * Clipped highlights (a channel at the white level at all four angles, bordered
   by polarized specular light): nothing is measured there, so the diffuse is
   filled from the neighbours' (inpainting) by a multiple of ``G``.
+
+One implementation for numpy and PyTorch: the array code runs over :mod:`polcam._xp`, the
+neighbourhood filters are :mod:`polcam._imageops` (OpenCV for numpy, the same kernels on a torch
+device); a ``torch.Tensor`` stack, or ``device=``, runs it on PyTorch (docs/algorithm.md,
+"Backends").
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-import cv2
 import numpy as np
 
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
-from polcam.separation._clipping import declipped, inpaint
+from polcam.separation._clipping import declipped, fill_clipped_highlights
 from polcam.separation._illuminant import _SATURATED, _plane_basis, estimate_illuminant
 from polcam.separation._polarization_noise import (
     _COHERENT_KSIG,
@@ -133,9 +137,11 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
     Parameters
     ----------
     stack
-        (4, H, W, 3) float in [0, 1], angles 0, 45, 90, 135.
+        (4, H, W, 3) float in [0, 1], angles 0, 45, 90, 135 (or (4, H, W) mono): a numpy array,
+        or a ``torch.Tensor``, computed on its device.
     **options
-        See :data:`DEFAULTS`: ``illuminant`` (RGB or None), ``efficiency``
+        See :data:`DEFAULTS`: ``device`` (None: numpy and OpenCV; a torch device name such as
+        ``"cuda"``: the same code on that device, the result back as numpy), ``illuminant`` (RGB or None), ``efficiency``
         ((3,) per-colour polarizer efficiency in (0, 1] or None),
         ``diffuse_polarization`` (keep a perpendicular polarized diffuse part), ``noise`` (how the
         polarized amplitude's noise bias is removed; unless "off", the colour prior's removal is
@@ -144,8 +150,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
 
     Returns
     -------
-    diffuse : numpy.ndarray
-        (H, W, 3) float32 in [0, mean over angles].
+    diffuse : numpy.ndarray or torch.Tensor
+        (H, W, 3) (or (H, W)) float32 in [0, mean over angles]; a tensor for a tensor stack.
     info : dict
         ``illuminant`` (RGB, mean 1), ``illuminant_source``, ``efficiency``,
         ``residual_ratio`` (unpolarized / polarized specular light on coloured highlights).
@@ -452,7 +458,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
                                                      smooth=k_small)
     if keep is not None:
         keep["prior_removed"] = xp.astype(diffuse, xp.float32)
-    diffuse = _fill_clipped(diffuse, measured, ic, spec, gx)
+    diffuse = fill_clipped_highlights(diffuse, measured, ic, spec, gx)
     info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor}
@@ -463,42 +469,6 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
     over = xp.amax((diffuse - measured) / gx, axis=-1)
     diffuse = xp.clip(diffuse - xp.maximum(over, 0.0)[..., None] * gx, 0.0, measured)
     return xp.astype(diffuse, xp.float32), info
-
-
-def _fill_clipped(diffuse: Any, measured: Any, ic: Any, spec: Any, g: Any) -> Any:
-    """Step 7: clipped highlights filled from their neighbours' diffuse by a multiple of ``g``.
-
-    Saturated pixels (a channel at the white level in all four angles): that channel's polarization
-    sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
-    is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
-    specular colour allows.  Only clipped highlights: a clipped region at least 30 % of whose
-    unclipped border (a 2-pixel ring) shows coherent polarized specular light (``spec``, step 3);
-    an overexposed diffuse surface has none around it and is left as measured.  The labelling and
-    the fast marching are sequential and run on the host (numpy and OpenCV); a torch array's
-    masks and layer are copied there and the filled layer back, only when a pixel is clipped.
-    """
-    xp = namespace(diffuse)
-    sat_px = xp.amax(measured, axis=-1) >= _SATURATED       # a channel clipped at all four angles
-    if not bool(sat_px.any()):
-        return diffuse
-    sat_h = xp.to_numpy(sat_px)
-    spec_h = xp.to_numpy(spec)
-    n_cc, lab = cv2.connectedComponents(sat_h.astype(np.uint8), connectivity=8)
-    lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
-    ring = (lab_d > 0) & ~sat_h
-    hits = np.bincount(lab_d[ring], weights=spec_h[ring].astype(np.float64), minlength=n_cc)
-    tot = np.bincount(lab_d[ring], minlength=n_cc)
-    highlight = hits >= 0.3 * np.maximum(tot, 1)
-    highlight[0] = False
-    sat_h = highlight[lab]
-    if not 0 < int(sat_h.sum()) < sat_h.size // 2:
-        return diffuse
-    # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
-    # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
-    fill = xp.asarray(inpaint(xp.to_numpy(diffuse), sat_h), like=diffuse)
-    sat_px = xp.asarray(sat_h, like=diffuse)
-    t = ((diffuse - fill) @ g) / float(g @ g)
-    return xp.where(sat_px[..., None], xp.clip(diffuse - t[..., None] * g, 0.0, ic), diffuse)
 
 
 def _specular_free(image: Any, smooth: float) -> Any:
