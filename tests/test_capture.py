@@ -730,3 +730,52 @@ def test_calibrated_colour_capture_separates_the_corrected_stack(tmp_path):
     np.testing.assert_array_equal(logged, unit_u8(want.diffuse))
     unfixed = separate(np.clip(demosaic(raw, method="bilinear", resolution="cell"), 0.0, 1.0), method="shen13")
     assert not np.array_equal(logged, unit_u8(unfixed.diffuse))
+
+
+def test_live_separation_holds_the_first_frames_illuminant(tmp_path):
+    # a method that estimates the illuminant gets the first frame's estimate on every later frame
+    # (a static scene's light does not change; its per-frame estimate flips with the noise)
+    folder, _ = _replay_folder(tmp_path, "synthetic_bunny5", n=3)
+    with ReplayCamera(folder) as cam:
+        summary = run_capture(cam, out=None, separate="polarized-residual")
+    held = summary["separation_illuminant_held"]
+    assert summary["separations"] >= 1 and summary["separation_errors"] == []
+    assert len(held) == 3 and all(v > 0 for v in held) and abs(np.mean(held) - 1) < 1e-6
+    assert summary["separation_options"] == {}                  # what the user gave, not what was held
+    with ReplayCamera(folder) as cam:
+        each = run_capture(cam, out=None, separate="polarized-residual", hold_illuminant=False)
+    assert each["separation_illuminant_held"] is None and each["separations"] >= 1
+    with ReplayCamera(folder) as cam:
+        given = run_capture(cam, out=None, separate="polarized-residual",
+                            separate_options={"illuminant": [1.0, 1.0, 1.0]})
+    assert given["separation_illuminant_held"] is None
+    with ReplayCamera(folder) as cam:                             # a method with no illuminant option
+        other = run_capture(cam, out=None, separate="shen13")
+    assert other["separation_illuminant_held"] is None and other["separation_errors"] == []
+
+
+def test_the_held_illuminant_reaches_every_later_separation(tmp_path):
+    from polcam.acquisition.live import LiveProcessor
+    from polcam.separation import _registry
+
+    calls: list[dict] = []
+
+    @_registry.register("test-illuminant-probe", kind="stack", options=("illuminant",))
+    def probe(stack, **options):
+        calls.append(dict(options))
+        return stack.mean(axis=0), {"illuminant": [1.2, 1.0, 0.8]}
+
+    try:
+        folder, frames = _replay_folder(tmp_path, "synthetic_bunny5", n=3)
+        live = LiveProcessor(frames[0].layout, separate="test-illuminant-probe", workers=1)
+        for i, f in enumerate(frames):
+            live.offer(i, f)
+            deadline = time.monotonic() + 30
+            while live.separations < i + 1 and time.monotonic() < deadline:
+                time.sleep(0.01)
+        live.close()
+    finally:
+        del _registry._METHODS["test-illuminant-probe"]
+    assert live.separation_errors == [] and len(calls) == 3
+    assert calls[0] == {} and calls[1] == calls[2] == {"illuminant": [1.2, 1.0, 0.8]}
+    assert live.held_illuminant == [1.2, 1.0, 0.8]

@@ -24,6 +24,20 @@ if TYPE_CHECKING:
 
 __all__ = ["Counters", "LiveProcessor"]
 
+
+def _takes_illuminant(method: str | None) -> bool:
+    """Whether ``method`` takes an RGB ``illuminant`` option (so an estimate can be held)."""
+    from polcam.errors import MethodError
+    from polcam.separation._registry import check_options
+
+    if method is None:
+        return False
+    try:
+        check_options(method, {"illuminant": [1.0, 1.0, 1.0]})
+    except MethodError:
+        return False
+    return True
+
 class Counters:
     """Numbers the capture loop shares with the live thread (for the statistics plots)."""
 
@@ -52,6 +66,14 @@ class LiveProcessor:
     separate_options
         Keyword options of that method (e.g. ``{"device": "cuda"}`` for the
         tensor method on a GPU).
+    hold_illuminant
+        For a method that estimates the illuminant (``polarized-residual``, ``tensor``: it takes an
+        ``illuminant`` option and reports its estimate) and was not given one: estimate it on the
+        first separated frame and pass that estimate to every later one (:attr:`held_illuminant`).
+        A scene's light does not change from frame to frame, but its estimate does with the noise:
+        re-estimated each frame it flipped between two decisions on one of six noisy frames of a
+        static synthetic scene, and the whole diffuse layer with it (docs/algorithm.md,
+        "Frame-to-frame stability").  ``False``: estimate on every frame.
     counters
         Shared frame rate / dropped / incomplete numbers to plot.
     workers
@@ -69,12 +91,16 @@ class LiveProcessor:
     def __init__(self, layout: Layout, *, sink: Any = None, separate: str | None = None,
                  separate_options: dict[str, Any] | None = None,
                  counters: Counters | None = None, workers: int = 2,
-                 calibration: Calibration | None = None) -> None:
+                 calibration: Calibration | None = None, hold_illuminant: bool = True) -> None:
         self.layout = layout
         self.sink = sink
         self.calibration = calibration
         self.method = separate
         self.method_options = dict(separate_options or {})
+        #: The illuminant estimated on the first separated frame and passed to the later ones (RGB), or None.
+        self.held_illuminant: list[float] | None = None
+        self._hold = (bool(hold_illuminant) and separate not in (None, "imin")
+                      and "illuminant" not in self.method_options and _takes_illuminant(separate))
         self.counters = counters or Counters()
         self.processed = 0
         self.skipped = 0
@@ -192,12 +218,22 @@ class LiveProcessor:
                 dt = time.perf_counter() - t0
                 self.separation_seconds.append(dt)
                 self.separations += 1
+                if self._hold and self.held_illuminant is None:
+                    self._hold_from(res.info)
                 if self.sink is not None:  # RERUN SINK call site (separation layers)
                     ts = frame.metadata.get("timestamp_ns")
                     self.sink.log_layers(index, ts, diffuse=res.diffuse, specular=res.specular)
                     self.sink.log_stats(index, ts, separation_seconds=dt)
             except Exception as exc:  # noqa: BLE001 - reported, live view goes on
                 self.separation_errors.append(f"frame {index}: {exc}")
+
+    def _hold_from(self, info: dict[str, Any]) -> None:
+        """Keep the illuminant a separation estimated, for the separations that follow."""
+        est = info.get("illuminant", info.get("illuminant_chromaticity"))
+        if est is None or len(est) != 3 or not all(float(v) > 0 for v in est):
+            return
+        self.held_illuminant = [float(v) for v in est]
+        self.method_options["illuminant"] = self.held_illuminant
 
     def close(self, *, finish: bool = True) -> None:
         """Stop the live threads.

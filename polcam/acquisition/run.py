@@ -133,6 +133,7 @@ def run_capture(
     calibration: Calibration | None = None,
     rerun_bind: str = "127.0.0.1",
     rerun_port: int = 9090,
+    hold_illuminant: bool = True,
 ) -> dict[str, Any]:
     """Capture from an open, configured camera until a stop condition; return the summary.
 
@@ -185,6 +186,11 @@ def run_capture(
     rerun_bind, rerun_port
         ``rerun="serve"``: address and port of the web viewer (the data on
         port + 1); see :class:`polcam.sinks.rerun.WebServer`.
+    hold_illuminant
+        Estimate the illuminant on the first separated frame and keep it for the later ones, for
+        a method that estimates it and was given none
+        (:class:`polcam.acquisition.live.LiveProcessor`); recorded as
+        ``separation_illuminant_held``.  ``False``: estimate on every frame.
 
     Returns
     -------
@@ -193,7 +199,7 @@ def run_capture(
         ``frames_incomplete``, ``frames_dropped``, ``frames_received``,
         ``frames_saved``, ``frames_save_failed``, ``frames_unsaved``,
         ``frames_processed``, ``frames_skipped``, ``separations``,
-        ``separations_skipped``, ``duration_s``, ``fps``, ``stop_reason``,
+        ``separations_skipped``, ``separation_illuminant_held``, ``duration_s``, ``fps``, ``stop_reason``,
         ``files``, the camera's ``stream`` statistics, and ``calibration``
         / ``calibration_sha256`` (the calibration file and its SHA-256, as
         ``polcam process`` records them; ``None`` without one).
@@ -293,7 +299,7 @@ def run_capture(
         assert layout is not None
         live = LiveProcessor(layout, sink=sink, separate=separate, separate_options=separate_options,
                              counters=counters, workers=live_workers,
-                             calibration=calibration)
+                             calibration=calibration, hold_illuminant=hold_illuminant)
 
     received = 0
     refused: PolcamError | None = None
@@ -394,6 +400,7 @@ def run_capture(
         "frames_skipped": live.skipped if live else 0,
         "separation": separate,
         "separation_options": dict(separate_options or {}),
+        "separation_illuminant_held": live.held_illuminant if live else None,
         "separations": live.separations if live else 0,
         "separations_skipped": live.separations_skipped if live else 0,
         "separation_seconds_mean": (float(np.mean(live.separation_seconds))

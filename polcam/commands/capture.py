@@ -60,6 +60,11 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
     c.add_argument("--separate-option", action="append", metavar="KEY=VALUE",
                    help="an option of the --separate method, VALUE as JSON (repeatable), e.g. "
                         "--separate-option device=cuda for the tensor method on a GPU")
+    c.add_argument("--illuminant-each-frame", action="store_true",
+                   help="re-estimate the illuminant on every separated frame; by default a method that "
+                        "estimates it (polarized-residual, tensor) estimates it on the first one and keeps "
+                        "it (summary.json: separation_illuminant_held), unless --separate-option "
+                        "illuminant=[R, G, B] gives it")
     c.add_argument("--rerun", help="live view: spawn (a viewer; needs a display), serve (web viewer), "
                                    "or FILE.rrd")
     c.add_argument("--port", type=int, default=9090,
@@ -146,6 +151,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
                 live_workers=args.live_workers,
                 progress=None if args.quiet else progress, calibration=calibration,
                 rerun_bind=args.bind, rerun_port=args.port,
+                hold_illuminant=not args.illuminant_each_frame,
             )
     finally:
         for s, h in previous.items():
