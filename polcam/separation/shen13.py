@@ -96,15 +96,13 @@ def cluster_pseudo_chromaticity(pseudo: Any, threshold: float) -> Any:
         labels[remaining[near]] = k
         remaining = remaining[~near]
         k += 1
-    means = xp.zeros((k, 2), like=pseudo)
-    counts = xp.zeros((k,), like=pseudo)
     if xp.name == "numpy":
         counts = np.bincount(labels, minlength=k).astype(np.float64)
         means = np.stack([np.bincount(labels, weights=pseudo[:, j], minlength=k) / counts for j in range(2)],
                          axis=1)
-    else:
-        counts = counts.index_add(0, labels, pseudo.new_ones(n))
-        means = means.index_add(0, labels, pseudo) / counts[:, None]
+    else:  # torch: the same sums with index_add (bincount takes no 2-D weights)
+        counts = xp.zeros((k,), like=pseudo).index_add(0, labels, pseudo.new_ones(n))
+        means = xp.zeros((k, 2), like=pseudo).index_add(0, labels, pseudo) / counts[:, None]
     # Nearest mean by L1 distance, in chunks to bound memory.
     out = xp.zeros((n,), like=pseudo, dtype=xp.index)
     chunk = max(1, 2_000_000 // max(k, 1))
