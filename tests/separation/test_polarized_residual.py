@@ -564,3 +564,33 @@ def test_a_tiny_change_of_the_input_gives_a_tiny_change_of_the_layer():
         p = np.where(st >= 0.98, st, st * (1 + noise)).astype(np.float32)
         d1, _ = separate_polarized_residual(p)
         assert np.abs(d1 - d0).max() < 0.01, seed
+
+
+def test_torch_path_copies_to_the_host_only_where_documented(torch_cases, monkeypatch):
+    # on a GPU an implicit numpy conversion of a tensor fails, and a hidden copy costs time: make
+    # every implicit one raise, and record who asks for the explicit ones (docs/algorithm.md,
+    # "Backends": the noise estimate's bins, the white test's block sums, the highlights' colour
+    # sum, and the clipped fill)
+    import inspect
+
+    torch = pytest.importorskip("torch")
+    from polcam import _xp
+    from polcam.separation.polarized_residual import separate_polarized_residual
+
+    def refuse(self, *args, **kwargs):
+        raise AssertionError("implicit host copy of a tensor")
+
+    callers = set()
+    real = _xp.TorchXP.to_numpy
+
+    def spy(a):
+        callers.add(inspect.stack()[1].function)
+        return real(a)
+
+    monkeypatch.setattr(torch.Tensor, "__array__", refuse)
+    monkeypatch.setattr(_xp.TorchXP, "to_numpy", staticmethod(spy))
+    for name, (st, opts) in torch_cases.items():
+        separate_polarized_residual(torch.as_tensor(st), **opts)
+    assert callers <= {"_binned_spread", "_white_distance", "_total_chromaticity", "highlight_colour",
+                       "fill_clipped_highlights"}, callers
+    assert "fill_clipped_highlights" in callers                   # the clipped case took that path
