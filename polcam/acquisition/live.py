@@ -24,20 +24,6 @@ if TYPE_CHECKING:
 
 __all__ = ["Counters", "LiveProcessor"]
 
-
-def _takes_illuminant(method: str | None) -> bool:
-    """Whether ``method`` takes an RGB ``illuminant`` option (so an estimate can be held)."""
-    from polcam.errors import MethodError
-    from polcam.separation._registry import check_options
-
-    if method is None:
-        return False
-    try:
-        check_options(method, {"illuminant": [1.0, 1.0, 1.0]})
-    except MethodError:
-        return False
-    return True
-
 class Counters:
     """Numbers the capture loop shares with the live thread (for the statistics plots)."""
 
@@ -99,8 +85,11 @@ class LiveProcessor:
         self.method_options = dict(separate_options or {})
         #: The illuminant estimated on the first separated frame and passed to the later ones (RGB), or None.
         self.held_illuminant: list[float] | None = None
-        self._hold = (bool(hold_illuminant) and separate not in (None, "imin")
-                      and "illuminant" not in self.method_options and _takes_illuminant(separate))
+        self._hold = False
+        if hold_illuminant and separate not in (None, "imin") and "illuminant" not in self.method_options:
+            from polcam.separation._registry import takes_illuminant
+
+            self._hold = takes_illuminant(separate)
         self.counters = counters or Counters()
         self.processed = 0
         self.skipped = 0
@@ -229,11 +218,12 @@ class LiveProcessor:
 
     def _hold_from(self, info: dict[str, Any]) -> None:
         """Keep the illuminant a separation estimated, for the separations that follow."""
-        est = info.get("illuminant", info.get("illuminant_chromaticity"))
-        if est is None or len(est) != 3 or not all(float(v) > 0 for v in est):
-            return
-        self.held_illuminant = [float(v) for v in est]
-        self.method_options["illuminant"] = self.held_illuminant
+        from polcam.separation._registry import estimated_illuminant
+
+        est = estimated_illuminant(info)
+        if est is not None:
+            self.held_illuminant = est
+            self.method_options["illuminant"] = est
 
     def close(self, *, finish: bool = True) -> None:
         """Stop the live threads.

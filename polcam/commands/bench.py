@@ -43,6 +43,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
         from polcam.bench import real
 
         return real.run_args(args)
+    if args.bench == "stability":
+        from polcam.bench import stability
+
+        return stability.run_args(args)
     if args.bench == "calibration":
         from polcam.calibration import bench as cal_bench
 
@@ -52,7 +56,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
     """Add ``bench`` and its benchmarks to the sub-parsers."""
-    b = sub.add_parser("bench", help="benchmarks (demosaic, sihr, quality, speed, calibration, real)",
+    b = sub.add_parser("bench", help="benchmarks (demosaic, sihr, quality, speed, calibration, real, stability)",
                        description="Benchmarks that reproduce the tables of docs/benchmarks.md. demosaic: "
                                    "demosaicing quality and speed against ground truth, beside polanalyser. "
                                    "sihr: the single-image highlight-removal methods on the Shen 2013 images "
@@ -61,7 +65,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                                    "exact and fast solvers). "
                                    "calibration: dark, flat and polarizer calibration on a synthetic imperfect "
                                    "sensor. real: every colour method on real colour-polarization stacks, "
-                                   "judged by physics.")
+                                   "judged by physics. stability: how much a method's layer moves when its "
+                                   "input barely does (continuity, frame-to-frame flicker).")
     bsub = b.add_subparsers(dest="bench", required=True, metavar="BENCH")
     from polcam.bench import demosaic as _demosaic
 
@@ -105,5 +110,13 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     from polcam.bench import real as _real
 
     _real.add_parser(bsub)
+    from polcam.bench import stability as _stability
+
+    bst = bsub.add_parser("stability", help="how much a method's layer moves when its input barely does",
+                          description="Per synthetic scene and method: the largest change of the diffuse layer "
+                                      "under a perturbation of the input far below any noise (continuity), and "
+                                      "the per-pixel deviation of the layer over noise seeds of a static scene "
+                                      "(flicker), with the mean PSNR (docs/algorithm.md, polarized-residual).")
+    _stability.add_arguments(bst)
     b.set_defaults(func=cmd_bench)
     return b

@@ -14,7 +14,7 @@ from polcam._names import lookup, ordered
 from polcam.errors import MethodError
 
 __all__ = ["Separation", "MethodSpec", "register", "separate", "methods", "method_spec",
-           "default_method", "input_form"]
+           "default_method", "input_form", "takes_illuminant", "estimated_illuminant"]
 
 
 @dataclass
@@ -153,6 +153,29 @@ def _as_input(images: Any) -> tuple[np.ndarray, str]:
     if lo < -1e-6 or hi > 1 + 1e-6:
         raise MethodError(f"input values span [{lo:.4g}, {hi:.4g}]: expected [0, 1]")
     return np.clip(arr, 0.0, 1.0, out=np.empty(arr.shape, dtype=np.float64)), form
+
+
+def takes_illuminant(method: str) -> bool:
+    """Whether ``method`` takes an RGB ``illuminant`` option (so an estimate can be passed back to it)."""
+    try:
+        check_options(method, {"illuminant": [1.0, 1.0, 1.0]})
+    except MethodError:
+        return False
+    return True
+
+
+def estimated_illuminant(info: dict[str, Any]) -> list[float] | None:
+    """The illuminant a separation estimated, from its ``info`` (RGB, positive), or None.
+
+    ``polarized-residual`` reports ``illuminant`` (and ``illuminant_source`` ``"given"`` when it
+    was passed one: not an estimate), the tensor method ``illuminant_chromaticity``.
+    """
+    if info.get("illuminant_source") == "given":
+        return None
+    est = info.get("illuminant", info.get("illuminant_chromaticity"))
+    if est is None or isinstance(est, str) or len(est) != 3 or not all(float(v) > 0 for v in est):
+        return None
+    return [float(v) for v in est]
 
 
 def check_options(method: str, options: dict[str, Any]) -> None:
