@@ -104,7 +104,8 @@ def _prior_removal(diffuse: Any, sf: Any, sig: Any, *, smooth: int | None = None
     the noise alone.  With ``smooth`` (an odd Gaussian kernel side), the removal is kept whole where
     its Gaussian-smoothed value exceeds ``_COHERENT_KSIG`` of its own deviations (a coherent
     highlight's, which the garrote would shrink by ``_KSIG^2 var / removal``: a quarter at five
-    deviations).  Returns (H, W, 3) float32 >= 0 (numpy or torch, as the input).
+    deviations), blended with the garroted removal over one deviation around that threshold (ninth
+    round: no jump).  Returns (H, W, 3) float32 >= 0 (numpy or torch, as the input).
     """
     xp = namespace(diffuse)
     delta = diffuse - xp.minimum(sf, diffuse)
