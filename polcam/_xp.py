@@ -115,7 +115,6 @@ class NumpyXP:
     minimum = staticmethod(np.minimum)
     arctan2 = staticmethod(np.arctan2)
     cos = staticmethod(np.cos)
-    abs = staticmethod(np.abs)
     concatenate = staticmethod(np.concatenate)
     nonzero = staticmethod(np.nonzero)
 
@@ -340,9 +339,6 @@ class TorchXP:
 
     def cos(self, a: Any) -> Any:
         return self.torch.cos(a)
-
-    def abs(self, a: Any) -> Any:
-        return self.torch.abs(a)
 
     def concatenate(self, arrays: Sequence[Any], axis: int = 0) -> Any:
         return self.torch.cat(list(arrays), dim=axis)

@@ -256,8 +256,9 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
     g = (g / g.mean()).astype(np.float32)
     gx = xp.asarray(g, like=s)                              # the same (3,) float32 where the stack is
     if not np.all(eff == 1):
-        q = q / xp.asarray(eff.astype(np.float32), like=s)
-        u = u / xp.asarray(eff.astype(np.float32), like=s)
+        effx = xp.asarray(eff.astype(np.float32), like=s)
+        q = q / effx
+        u = u / effx
     sig = _stokes_noise(s, ic)
 
     # 1. coherent polarization: Stokes components smoothed over a few pixels (demosaicing and noise
