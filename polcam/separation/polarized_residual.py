@@ -454,6 +454,10 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
                 # all polarized and step 2 removed it: the colour prior is weighted down there
                 near = _imageops.box(xp.astype(gate, xp.float32), k_ctx)
                 wgt = wgt * (1.0 - near * (1.0 - xp.clip(k_loc / _PRIOR_K, 0.0, 1.0)))
+            # not where a channel is clipped at all four angles: that pixel's colour is not measured (an
+            # overexposed white wall under a tinted light looked coloured and lost up to 38 % of its
+            # light; docs/algorithm.md, tenth round); a clipped highlight is step 7's
+            wgt = xp.where(xp.amax(measured, axis=-1) >= _SATURATED, 0.0, wgt)
             wgt = wgt[..., None]
             diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig,
                                                      smooth=k_small)
