@@ -29,6 +29,13 @@ every method separates that stack.  Per scene and method it reports:
 ``seconds``
     Wall time of the separation.
 
+Variants (``--exposure``, ``--light``): the true stack is relit before the
+camera sees it, ``clip(true * light * exposure, 0, 1)``: a longer exposure
+clips what was bright, a coloured light (or a camera that is not white
+balanced) tints every surface.  The achromatic set is taken from the scene as
+recorded (before relighting), so ``achromatic_kept`` counts the same white and
+grey surfaces under every variant.
+
 Outputs: a Markdown table (``table.md``), ``scores.csv`` and one montage PNG
 per scene (``montage_<scene>.png``: rows of methods, columns input | diffuse |
 specular, the specular shown at twice its value).
@@ -54,8 +61,8 @@ import numpy as np
 from polcam.errors import FrameReadError, PolcamError
 from polcam.io.atomic import atomic_path, atomic_write
 
-__all__ = ["RealScore", "find_scenes", "load_stack", "prepare", "camera_stack", "metrics", "run", "format_table",
-           "write_outputs", "add_parser", "run_args"]
+__all__ = ["RealScore", "find_scenes", "load_stack", "prepare", "relight", "camera_stack", "achromatic_mask",
+           "metrics", "run", "format_table", "write_outputs", "add_parser", "run_args"]
 
 #: Threshold of the Imin checks (one 8-bit step is 1/255).
 OVER_IMIN = 3.0 / 255.0
@@ -136,6 +143,40 @@ def prepare(stack: np.ndarray, *, crop: Sequence[int] | None = None, scale: floa
     return np.ascontiguousarray(s[:, :h4, :w4])
 
 
+def relight(true_stack: np.ndarray, *, exposure: float = 1.0,
+            light: Sequence[float] = (1.0, 1.0, 1.0)) -> np.ndarray:
+    """The scene under another exposure and light colour: ``clip(true_stack * light * exposure, 0, 1)``.
+
+    Parameters
+    ----------
+    true_stack
+        (4, H, W, 3) float in [0, 1].
+    exposure
+        Gain, > 0 (1.5: half a stop more light; what was above 1 / 1.5 clips).
+    light
+        (3,) positive RGB multipliers: the light's colour relative to the recording's white
+        balance (a raw IMX250MYR frame is green-heavy, about (0.55, 1, 0.7)).
+
+    Returns
+    -------
+    numpy.ndarray
+        (4, H, W, 3) float64 in [0, 1].  Samples the recording had clipped stay at their clipped
+        value times the gain (their true value is not known).
+
+    Raises
+    ------
+    PolcamError
+        A non-positive or non-finite exposure or light.
+    """
+    e = float(exposure)
+    if not np.isfinite(e) or e <= 0:
+        raise PolcamError(f"exposure {exposure!r}: expected a number > 0")
+    c = np.asarray(light, dtype=np.float64).reshape(-1)
+    if c.size != 3 or not np.all(np.isfinite(c)) or np.any(c <= 0):
+        raise PolcamError(f"light {tuple(np.asarray(light).reshape(-1))!r}: expected three numbers > 0 (R, G, B)")
+    return np.clip(np.asarray(true_stack, np.float64) * (c * e), 0.0, 1.0)
+
+
 def camera_stack(true_stack: np.ndarray, *, layout: str = "imx250myr") -> np.ndarray:
     """What a colour polarization camera gives: ``true_stack`` mosaicked, demosaiced (default method), clipped."""
     from polcam.demosaicing import demosaic, mosaic_stack
@@ -150,8 +191,22 @@ def _imin(stack: np.ndarray) -> np.ndarray:
     return np.maximum(imin(stack), 0.0)
 
 
+def achromatic_mask(true_stack: np.ndarray) -> np.ndarray:
+    """The nearly unpolarized achromatic pixels of a true stack (``achromatic_kept``), (H, W) bool.
+
+    True DoLP of the grey image < 0.03, saturation ``(max - min) / max`` of the true mean < 0.12,
+    mean intensity > 0.08.
+    """
+    from polcam.stokes import dolp
+
+    tmean = true_stack.mean(axis=0)
+    tmax, tmin = tmean.max(-1), tmean.min(-1)
+    sat = (tmax - tmin) / np.maximum(tmax, 1e-6)
+    return (dolp(true_stack.mean(axis=-1)) < 0.03) & (sat < 0.12) & (tmean.mean(-1) > 0.08)
+
+
 def metrics(diffuse: np.ndarray, specular: np.ndarray, given: np.ndarray,
-            true_stack: np.ndarray) -> dict[str, float]:
+            true_stack: np.ndarray, *, achromatic: np.ndarray | None = None) -> dict[str, float]:
     """The physics checks of one separation (see the module docstring).
 
     Parameters
@@ -162,14 +217,15 @@ def metrics(diffuse: np.ndarray, specular: np.ndarray, given: np.ndarray,
         (4, H, W, 3) the stack the method separated.
     true_stack
         (4, H, W, 3) the true stack.
+    achromatic
+        (H, W) bool, the pixels ``achromatic_kept`` is taken over; default
+        :func:`achromatic_mask` of ``true_stack``.
 
     Returns
     -------
     dict
         ``over_input``, ``over_true``, ``spread``, ``top_removed``, ``achromatic_kept``.
     """
-    from polcam.stokes import dolp
-
     d = np.asarray(diffuse, np.float64)
     s = np.asarray(specular, np.float64)
     over_in = float(np.mean(np.any(d - _imin(given) > OVER_IMIN, axis=-1)))
@@ -188,10 +244,7 @@ def metrics(diffuse: np.ndarray, specular: np.ndarray, given: np.ndarray,
     lum = inp.mean(axis=-1)
     top = lum >= np.quantile(lum, 0.99)
     top_removed = float(s[top].sum() / max(inp[top].sum(), 1e-12))
-    tmean = true_stack.mean(axis=0)
-    tmax, tmin = tmean.max(-1), tmean.min(-1)
-    sat = (tmax - tmin) / np.maximum(tmax, 1e-6)
-    ach = (dolp(true_stack.mean(axis=-1)) < 0.03) & (sat < 0.12) & (tmean.mean(-1) > 0.08)
+    ach = achromatic_mask(true_stack) if achromatic is None else np.asarray(achromatic, bool)
     kept = float(d[ach].sum() / inp[ach].sum()) if ach.any() and inp[ach].sum() > 0 else float("nan")
     return {"over_input": over_in, "over_true": over_tr, "spread": spread, "top_removed": top_removed,
             "achromatic_kept": kept}
@@ -205,6 +258,7 @@ def _colour_methods() -> list[str]:
 
 def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[str] | None = None,
         crop: Sequence[int] | None = None, scale: float = 1.0,
+        exposure: float = 1.0, light: Sequence[float] = (1.0, 1.0, 1.0),
         options: dict[str, dict[str, Any]] | None = None,
         progress: bool = True) -> tuple[list[RealScore], dict[str, dict[str, np.ndarray]]]:
     """Separate every real scene with every method and score it.
@@ -219,6 +273,9 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
         Only these scenes (names from :func:`find_scenes`).
     crop, scale
         Applied to the true stack first (:func:`prepare`).
+    exposure, light
+        Then the scene is relit (:func:`relight`); ``achromatic_kept`` stays on the surfaces
+        that are achromatic as recorded.
     options
         Per-method keyword options.
 
@@ -251,11 +308,14 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     meths = list(methods or _colour_methods())
     for m in meths:
         method_spec(m)  # an unknown name is refused before any work
+    relight(np.zeros((4, 1, 1, 3)), exposure=exposure, light=light)   # bad values refused before any work
     options = options or {}
     scores: list[RealScore] = []
     layers: dict[str, dict[str, np.ndarray]] = {}
     for name, files in found.items():
-        true = prepare(load_stack(files), crop=crop, scale=scale)
+        recorded = prepare(load_stack(files), crop=crop, scale=scale)
+        ach = achromatic_mask(recorded)
+        true = relight(recorded, exposure=exposure, light=light)
         given = camera_stack(true)
         layers[name] = {"input": given.mean(axis=0)}
         for m in meths:
@@ -267,7 +327,7 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
                                         error=f"{type(exc).__name__}: {exc}"))
                 continue
             sec = float(res.info.get("seconds", time.perf_counter() - t0))
-            mt = metrics(res.diffuse, res.specular, given, true)
+            mt = metrics(res.diffuse, res.specular, given, true, achromatic=ach)
             scores.append(RealScore(name, m, seconds=sec, **mt))
             layers[name][f"{m}/diffuse"] = res.diffuse
             layers[name][f"{m}/specular"] = res.specular
@@ -367,6 +427,10 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--crop", type=int, nargs=4, metavar=("Y", "X", "H", "W"),
                    help="crop the true stacks to this window first")
     p.add_argument("--scale", type=float, default=1.0, help="then resize by this factor in (0, 1] (default 1)")
+    p.add_argument("--exposure", type=float, default=1.0,
+                   help="relight: multiply the true stacks by this gain, then clip at 1 (default 1)")
+    p.add_argument("--light", type=float, nargs=3, default=(1.0, 1.0, 1.0), metavar=("R", "G", "B"),
+                   help="relight: the light's colour against the recording's white balance (default 1 1 1)")
     p.add_argument("--out", type=Path, default=Path("bench-output/real"), help="output folder "
                                                                               "(default bench-output/real)")
     p.set_defaults(bench_run=run_args)
@@ -383,7 +447,8 @@ def run_args(args: argparse.Namespace) -> int:
               "real-color-stacks/<scene>/ with 0/45/90/135 PNGs)", file=sys.stderr)
         return 2
     try:
-        scores, layers = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop, scale=args.scale)
+        scores, layers = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop, scale=args.scale,
+                             exposure=args.exposure, light=args.light)
     except PolcamError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from polcam.bench.real import OVER_IMIN, find_scenes, metrics, prepare, run, write_outputs
+from polcam.bench.real import OVER_IMIN, achromatic_mask, find_scenes, metrics, prepare, relight, run, write_outputs
 from polcam.cli import main
 from polcam.errors import PolcamError
 from polcam.stokes import synthesize
@@ -69,6 +69,47 @@ def test_prepare_crops_scales_and_rounds_to_the_cell():
         prepare(st, crop=(40, 0, 30, 10))
     with pytest.raises(PolcamError, match="scale"):
         prepare(st, scale=1.5)
+
+
+def test_relight_scales_tints_and_clips():
+    st = np.full((4, 2, 3, 3), 0.5)
+    st[0, 0, 0] = (0.9, 0.2, 0.1)
+    out = relight(st, exposure=1.5, light=(1.0, 0.5, 2.0))
+    assert np.allclose(out[1, 1, 1], (0.75, 0.375, 1.0))      # 0.5 * 2 * 1.5 = 1.5 clips at 1
+    assert np.allclose(out[0, 0, 0], (1.0, 0.15, 0.3))
+    assert np.array_equal(relight(st), st)
+    for bad in ({"exposure": 0}, {"exposure": float("nan")}, {"light": (1, 0, 1)}, {"light": (1, 1)}):
+        with pytest.raises(PolcamError, match="exposure|light"):
+            relight(st, **bad)
+
+
+def test_achromatic_set_can_be_given():
+    h, w = 10, 10
+    ic = np.full((h, w, 3), 0.4)
+    stack = _stack(ic, np.zeros_like(ic), np.zeros((h, w, 3)))
+    assert achromatic_mask(stack).all()
+    d = ic.copy()
+    d[:5] = 0.0                                # half the grey pixels lost to the specular layer
+    assert metrics(d, ic - d, stack, stack)["achromatic_kept"] == pytest.approx(0.5)
+    only = np.zeros((h, w), bool)
+    only[5:] = True                            # over the kept half alone
+    assert metrics(d, ic - d, stack, stack, achromatic=only)["achromatic_kept"] == pytest.approx(1.0)
+
+
+@pytest.mark.skipif(not HAVE_DATA, reason="../shared/data real colour stacks not present")
+def test_relit_run_counts_the_recorded_white_surfaces(tmp_path):
+    # under a green-heavy light the white wall is no longer grey in RGB, but it is the same wall:
+    # imin keeps its unpolarized light whatever its colour, so the share kept must not change
+    kw = {"methods": ["imin"], "scenes": ["jcpd-15"], "crop": (288, 0, 96, 160), "progress": False}
+    plain, _ = run(DATA, **kw)
+    tinted, _ = run(DATA, light=(0.55, 1.0, 0.7), **kw)
+    assert np.isfinite(plain[0].achromatic_kept) and plain[0].achromatic_kept > 0.5
+    assert tinted[0].achromatic_kept == pytest.approx(plain[0].achromatic_kept, abs=0.03)
+    with pytest.raises(PolcamError, match="exposure"):
+        run(DATA, exposure=-1, **kw)
+    rc = main(["bench", "real", "--data", str(DATA), "--scenes", "jcpd-15", "--methods", "imin",
+               "--exposure", "0", "--out", str(tmp_path / "o")])
+    assert rc == 2 and not (tmp_path / "o").exists()
 
 
 def test_no_data_is_a_clear_error(tmp_path):
