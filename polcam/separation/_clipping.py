@@ -17,6 +17,12 @@ from polcam.separation._illuminant import _SATURATED
 
 __all__ = ["declipped", "fill_clipped_highlights", "inpaint"]
 
+#: A clipped region is filled as a highlight in proportion to the share of its unclipped border
+#: that shows coherent polarized specular light: not at all below _RING_SHARE - _RING_RAMP / 2,
+#: wholly above _RING_SHARE + _RING_RAMP / 2.
+_RING_SHARE = 0.3
+_RING_RAMP = 0.4
+
 
 def declipped(stack: Any) -> Any:
     """The stack with clipped samples rebuilt from the unclipped ones where the physics allows.
@@ -143,14 +149,17 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, g: 
     ring = (lab_d > 0) & ~sat_h
     hits = np.bincount(lab_d[ring], weights=spec_h[ring].astype(np.float64), minlength=n_cc)
     tot = np.bincount(lab_d[ring], minlength=n_cc)
-    highlight = hits >= 0.3 * np.maximum(tot, 1)
-    highlight[0] = False
-    sat_h = highlight[lab]
+    # how far each region is a highlight: a ramp of its border's polarized share over
+    # _RING_SHARE +- _RING_RAMP / 2, not a switch (the share of a clipped ear moved across 0.3 between
+    # two noise draws and its whole diffuse jumped by 0.5; docs/algorithm.md, tenth round)
+    weight = np.clip((hits / np.maximum(tot, 1) - _RING_SHARE) / _RING_RAMP + 0.5, 0.0, 1.0)
+    weight[0] = 0.0
+    sat_h = weight[lab] > 0
     if not 0 < int(sat_h.sum()) < sat_h.size // 2:
         return diffuse
     # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
     # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
     fill = xp.asarray(inpaint(xp.to_numpy(diffuse), sat_h), like=diffuse)
-    sat_px = xp.asarray(sat_h, like=diffuse)
+    wpx = xp.asarray(weight[lab].astype(np.float32), like=diffuse)[..., None]
     t = ((diffuse - fill) @ g) / float(g @ g)
-    return xp.where(sat_px[..., None], xp.clip(diffuse - t[..., None] * g, 0.0, ic), diffuse)
+    return diffuse + wpx * (xp.clip(diffuse - t[..., None] * g, 0.0, ic) - diffuse)

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
-from polcam.separation._clipping import declipped, inpaint
+from polcam.separation._clipping import _RING_RAMP, _RING_SHARE, declipped, fill_clipped_highlights, inpaint
 
 
 def test_declipping_rebuilds_samples_exactly():
@@ -51,6 +52,35 @@ def test_inpaint_fills_a_hole_from_a_smooth_surrounding():
     err = np.abs(out[mask] - img[mask]).mean()
     err_const = np.abs(img[ring].mean(axis=0) - img[mask]).mean()
     assert err < 0.5 * err_const
+
+
+def test_clipped_region_fill_grows_with_its_polarized_border():
+    # a clipped disk (white level) on a 0.5 grey surround; the share of its 2-pixel border marked as
+    # coherent polarized specular light sweeps from 0 to 1. With none the region is an overexposed
+    # surface, left as measured; with all of it a clipped highlight, filled from the surround. In
+    # between the fill grows in steps as small as the share's: before the tenth round it switched
+    # at a share of 0.3, and a clipped ear's diffuse jumped by 0.5 between two noise draws
+    h, w = 40, 40
+    yy, xx = np.mgrid[:h, :w]
+    disk = (yy - 20) ** 2 + (xx - 20) ** 2 <= 36
+    measured = np.where(disk[..., None], 1.0, 0.5).astype(np.float32) * np.ones(3, np.float32)
+    ring = (cv2.dilate(disk.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0) & ~disk
+    ring_idx = np.flatnonzero(ring)
+    g = np.ones(3, np.float32)
+    centre = []
+    shares = np.linspace(0.0, 1.0, 41)
+    for share in shares:
+        spec = np.zeros(h * w, bool)
+        spec[ring_idx[: int(round(share * ring_idx.size))]] = True
+        out = fill_clipped_highlights(measured.copy(), measured, measured, spec.reshape(h, w), g)
+        assert np.array_equal(out[~disk], measured[~disk])
+        centre.append(float(out[20, 20].mean()))
+    centre = np.array(centre)
+    assert centre[0] == pytest.approx(1.0) and centre[-1] == pytest.approx(0.5, abs=0.02)
+    assert np.all(np.diff(centre) <= 1e-6)                      # more border evidence, more fill
+    assert np.abs(np.diff(centre)).max() < 0.1                  # no jump (a switch moves it by 0.5)
+    lo = shares < _RING_SHARE - _RING_RAMP / 2
+    assert np.all(centre[lo] == pytest.approx(1.0))             # weak evidence: left as measured
 
 
 def test_declipping_on_torch_is_the_same(dev):
