@@ -132,11 +132,13 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, g: 
     Saturated pixels (a channel at the white level in all four angles): that channel's polarization
     sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
     is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
-    specular colour allows.  Only clipped highlights: a clipped region at least 30 % of whose
-    unclipped border (a 2-pixel ring) shows coherent polarized specular light (``spec``, step 3);
-    an overexposed diffuse surface has none around it and is left as measured.  The labelling and
-    the fast marching are sequential and run on the host (numpy and OpenCV); a torch array's
-    masks and layer are copied there and the filled layer back, only when a pixel is clipped.
+    specular colour allows.  Only clipped highlights: a clipped region is filled in proportion
+    to the share of its unclipped border (a 2-pixel ring) that shows coherent polarized specular
+    light (``spec``, step 3), a ramp from none below 10 % to wholly above 50 % (``_RING_SHARE``,
+    ``_RING_RAMP``); an overexposed diffuse surface has none around it and is left as measured.
+    The labelling and the fast marching are sequential and run on the host (numpy and OpenCV); a
+    torch array's masks and layer are copied there and the filled layer back, only when a pixel
+    is clipped.
     """
     xp = namespace(diffuse)
     sat_px = xp.amax(measured, axis=-1) >= _SATURATED       # a channel clipped at all four angles

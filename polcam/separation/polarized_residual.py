@@ -28,7 +28,9 @@ benchmarks behind every choice):
   for the residual.
 * Clipped highlights (a channel at the white level at all four angles, bordered
   by polarized specular light): nothing is measured there, so the diffuse is
-  filled from the neighbours' (inpainting) by a multiple of ``G``.
+  filled from the neighbours' (inpainting) by a multiple of ``G``, in
+  proportion to how much of the border is polarized highlight.  The colour
+  prior does not act on any pixel clipped so: its colour is not measured.
 
 One implementation for numpy and PyTorch: the array code runs over :mod:`polcam._xp`, the
 neighbourhood filters are :mod:`polcam._imageops` (OpenCV for numpy, the same kernels on a torch
