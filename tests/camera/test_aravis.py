@@ -216,6 +216,10 @@ def test_gige_emulator_with_packet_loss_counts_incomplete_frames():
     for f in good:  # every frame handed on is complete and exact
         np.testing.assert_array_equal(f.mosaic, _ramp(f))
     assert st.incomplete >= 1
-    assert st.by_status.get("missing-packets", 0) == st.incomplete
+    # every incomplete frame is counted under its buffer's status: mostly missing packets, and a
+    # timeout when the lost packet was the frame's leader or trailer (the buffer never closes)
+    assert st.by_status.get("missing-packets", 0) >= 1
+    errors = {k: v for k, v in st.by_status.items() if k not in ("success", "aborted", "cleared")}
+    assert sum(errors.values()) == st.incomplete, st.by_status
     assert st.stream["n_missing_packets"] > 0
     assert st.good >= len(good)
