@@ -86,7 +86,7 @@ class LiveProcessor:
         #: The illuminant estimated on the first separated frame and passed to the later ones (RGB), or None.
         self.held_illuminant: list[float] | None = None
         self._hold = False
-        if hold_illuminant and separate not in (None, "imin") and "illuminant" not in self.method_options:
+        if hold_illuminant and separate is not None and "illuminant" not in self.method_options:
             from polcam.separation._registry import takes_illuminant
 
             self._hold = takes_illuminant(separate)

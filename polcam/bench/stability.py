@@ -32,9 +32,6 @@ import numpy as np
 
 __all__ = ["StabilityRow", "perturbed", "run", "format_markdown", "write_outputs", "add_arguments", "run_args"]
 
-#: Samples at or above this level are clipped: the perturbation leaves them as they are.
-_WHITE = 0.98
-
 
 @dataclass(frozen=True)
 class StabilityRow:
@@ -65,10 +62,16 @@ class StabilityRow:
 
 
 def perturbed(stack: np.ndarray, rel: float, seed: int) -> np.ndarray:
-    """``stack`` with every sample below the white level multiplied by ``1 + N(0, rel)`` (float32, same shape)."""
+    """``stack`` with every sample below the white level multiplied by ``1 + N(0, rel)`` (float32, same shape).
+
+    The white level is the one the separation methods treat as clipped (``_illuminant._SATURATED``):
+    a clipped sample stays as it is, as a real one does.
+    """
+    from polcam.separation._illuminant import _SATURATED
+
     s = np.asarray(stack, dtype=np.float32)
     noise = np.random.default_rng(seed).normal(0.0, rel, s.shape)
-    return np.where(s >= _WHITE, s, s * (1.0 + noise)).astype(np.float32)
+    return np.where(s >= _SATURATED, s, s * (1.0 + noise)).astype(np.float32)
 
 
 def _object(layer: np.ndarray, mask: np.ndarray) -> np.ndarray:

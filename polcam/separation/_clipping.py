@@ -156,12 +156,13 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, g: 
     # two noise draws and its whole diffuse jumped by 0.5; docs/algorithm.md, tenth round)
     weight = np.clip((hits / np.maximum(tot, 1) - _RING_SHARE) / _RING_RAMP + 0.5, 0.0, 1.0)
     weight[0] = 0.0
-    sat_h = weight[lab] > 0
+    w_px = weight[lab]
+    sat_h = w_px > 0
     if not 0 < int(sat_h.sum()) < sat_h.size // 2:
         return diffuse
     # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
     # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
     fill = xp.asarray(inpaint(xp.to_numpy(diffuse), sat_h), like=diffuse)
-    wpx = xp.asarray(weight[lab].astype(np.float32), like=diffuse)[..., None]
+    wpx = xp.asarray(w_px.astype(np.float32), like=diffuse)[..., None]
     t = ((diffuse - fill) @ g) / float(g @ g)
     return diffuse + wpx * (xp.clip(diffuse - t[..., None] * g, 0.0, ic) - diffuse)

@@ -274,7 +274,7 @@ def _projection_terms(stack: Any, efficiency: Any, own_colour: float | None) -> 
     p = xp.pad_hw(vs, 1, 0.0)                                   # zeros outside
     box = sum(p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
     terms = xp.einsum("hwcj,hwj->hwc", v, box - vs)             # (H, W, 3)
-    ok = xp.amax(xp.amax(x, axis=0), axis=-1) < 0.98
+    ok = xp.amax(xp.amax(x, axis=0), axis=-1) < _SATURATED
     if own_colour is not None:
         terms, ok = _own_colour_weighted(terms, x, ok, float(own_colour))
     return terms, ok
