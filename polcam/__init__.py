@@ -1,18 +1,19 @@
 """polcam: polarization cameras, from raw sensor frames to diffuse and specular layers.
 
 The pipeline (docs/architecture.md): raw frame -> :func:`demosaic` -> stack
-(4 angles x H x W [x RGB]) -> :mod:`polcam.stokes` -> :func:`separate`.
+(4 angles x H x W [x RGB]) -> :func:`stokes` (and :func:`dolp`, :func:`aolp`,
+:func:`imin`, :func:`imax`, from :mod:`polcam.polarimetry`) -> :func:`separate`.
 """
 
 from __future__ import annotations
 
 from importlib.metadata import PackageNotFoundError, version
 
-from polcam import stokes
 from polcam.demosaicing import demosaic
 from polcam.errors import PolcamError
 from polcam.frame import Frame
 from polcam.mosaic import Layout, parse_layout
+from polcam.polarimetry import Stokes, aolp, dolp, imax, imin, stokes
 from polcam.separation import Separation, separate
 
 _LAZY_IO = ("read_frame", "read_image", "write_image")
@@ -49,6 +50,11 @@ __all__ = [
     "DEMOSAIC_METHODS",
     "METHODS",
     "Separation",
+    "Stokes",
+    "aolp",
+    "dolp",
+    "imax",
+    "imin",
     "separate",
     "Frame",
     "Layout",

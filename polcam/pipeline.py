@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from polcam import stokes as st
+from polcam import polarimetry as st
 from polcam.errors import LayoutError
 from polcam.frame import Frame
 from polcam.mosaic import Layout
@@ -307,7 +307,7 @@ def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
     polarizer cell gives one sample per angle), without building a float
     stack.
 
-    Mono sensors: exactly ``polcam.stokes`` (``stokes``, ``dolp``, ``aolp``,
+    Mono sensors: exactly ``polcam.polarimetry`` (``stokes``, ``dolp``, ``aolp``,
     ``imin``) of ``polcam.demosaic(..., resolution="cell")`` up to float32
     rounding (AoLP through OpenCV's ``cartToPolar``, within 1e-4 rad), and the
     ``imin`` separation of that stack.

@@ -64,7 +64,7 @@ def test_the_planted_frame_holds_what_it_says(tmp_path):
     frame = read_frame(tmp_path / "planted_00.png")
     assert str(frame.layout) == "imx250myr" and frame.bit_depth == 12
     import polcam
-    from polcam import stokes as st
+    from polcam import polarimetry as st
 
     s = st.stokes(polcam.demosaic(frame, resolution="cell"))
     top, bottom = (slice(4, 28), slice(4, -4)), (slice(36, 60), slice(4, -4))

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 SURFACE: dict[str, set[str]] = {
-    "polcam": {"DEMOSAIC_METHODS", "Frame", "Layout", "METHODS", "PolcamError", "Separation", "__version__",
-               "demosaic", "parse_layout", "read_frame", "read_image", "separate", "stokes", "write_image"},
+    "polcam": {"DEMOSAIC_METHODS", "Frame", "Layout", "METHODS", "PolcamError", "Separation", "Stokes", "__version__", "aolp",
+               "demosaic", "dolp", "imax", "imin", "parse_layout", "read_frame", "read_image", "separate", "stokes", "write_image"},
     "polcam.separation": {"METHODS", "Separation", "default_method", "input_form", "method_spec", "methods",
                           "register", "separate"},
     "polcam.io": {"IMAGE_EXTENSIONS", "RAW_EXTENSIONS", "atomic_path", "atomic_write", "pack", "packed_size",
@@ -28,7 +28,7 @@ SURFACE: dict[str, set[str]] = {
                            "calibrate_polarizer", "check_angles", "correct_stack", "correction_matrices",
                            "diattenuation_to_extinction", "extinction_to_diattenuation", "fill_defects",
                            "forward", "load_calibration", "measurement_rows", "save_calibration"},
-    "polcam.stokes": {"Sinusoid", "Stokes", "aolp", "dolp", "fit_residual", "fit_sinusoid", "imax", "imin",
+    "polcam.polarimetry": {"Sinusoid", "Stokes", "aolp", "dolp", "fit_residual", "fit_sinusoid", "imax", "imin",
                       "stokes", "synthesize"},
     "polcam.pipeline": {"FrameResult", "LiveMaps", "PRODUCTS", "calibrate", "default_demosaic", "live_maps", "products",
                         "require_layout", "run_frame", "separate_layers", "to_stack"},
@@ -86,3 +86,17 @@ def test_unknown_attribute_is_an_attribute_error():
 
     with pytest.raises(AttributeError, match="no_such_name"):
         polcam.no_such_name  # noqa: B018
+
+
+def test_pipeline_steps_are_functions_that_compose():
+    """One kind of name for one kind of step: each public step is a function, and what one returns the
+    next accepts (demosaic -> stokes -> dolp / aolp)."""
+    import polcam
+
+    for name in ("demosaic", "stokes", "dolp", "aolp", "imin", "imax", "separate"):
+        assert callable(getattr(polcam, name)), name
+    raw = np.random.default_rng(0).random((16, 16)).astype(np.float32)
+    stack = polcam.demosaic(raw, layout="imx250mzr", method="bilinear")
+    s = polcam.stokes(stack)
+    assert isinstance(s, polcam.Stokes)
+    assert polcam.dolp(s).shape == raw.shape and polcam.aolp(stack).shape == raw.shape

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from polcam import stokes as st
+from polcam import polarimetry as st
 from polcam.camera import AravisCamera, ReplayCamera, aravis_available
 from polcam.camera.emulator import emulator_available, gige_emulator
 from polcam.acquisition import FrameSaver, StopRequest, run_capture

@@ -18,7 +18,7 @@ from polcam.mosaic import (
     pixel_format,
     supported_pixel_formats,
 )
-from polcam.stokes import aolp, dolp
+from polcam.polarimetry import aolp, dolp
 
 
 def test_named_layouts_match_the_sensor_datasheet():

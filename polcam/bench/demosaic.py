@@ -58,7 +58,7 @@ from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.demosaicing import methods as demosaic_methods
 from polcam.errors import FrameReadError, MethodError
 from polcam.mosaic import parse_layout
-from polcam.stokes import aolp, dolp, stokes
+from polcam.polarimetry import aolp, dolp, stokes
 from polcam.synth.patterns import SCENES, make_scene, stack_from_stokes
 
 __all__ = [

@@ -186,7 +186,7 @@ def camera_stack(true_stack: np.ndarray, *, layout: str = "imx250myr") -> np.nda
 
 
 def _imin(stack: np.ndarray) -> np.ndarray:
-    from polcam.stokes import imin
+    from polcam.polarimetry import imin
 
     return np.maximum(imin(stack), 0.0)
 
@@ -197,7 +197,7 @@ def achromatic_mask(true_stack: np.ndarray) -> np.ndarray:
     True DoLP of the grey image < 0.03, saturation ``(max - min) / max`` of the true mean < 0.12,
     mean intensity > 0.08.
     """
-    from polcam.stokes import dolp
+    from polcam.polarimetry import dolp
 
     tmean = true_stack.mean(axis=0)
     tmax, tmin = tmean.max(-1), tmean.min(-1)

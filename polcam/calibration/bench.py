@@ -56,7 +56,7 @@ from polcam.calibration.simulate import ImperfectSensor
 from polcam.calibration.store import Calibration
 from polcam.demosaicing import demosaic
 from polcam.frame import Frame
-from polcam.stokes import aolp, dolp, stokes
+from polcam.polarimetry import aolp, dolp, stokes
 
 __all__ = [
     "VARIANTS", "add_arguments", "format_markdown", "main", "make_calibration", "precision", "run", "run_args",

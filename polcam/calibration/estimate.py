@@ -545,7 +545,7 @@ def calibrate_polarizer(frames: Frames, angles_deg: Sequence[float], *, layout: 
         N = 256 frames of 8000 electrons (docs/calibration.md).
     angles_deg
         The polarizer angle of each frame, degrees, in the image convention of
-        :mod:`polcam.stokes` (from the image x axis towards the layout's
+        :mod:`polcam.polarimetry` (from the image x axis towards the layout's
         45-degree polarizer); at least :data:`MIN_ANGLES` distinct values with
         gaps of at most :data:`MAX_ANGLE_GAP_DEG`.
     layout

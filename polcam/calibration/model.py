@@ -9,11 +9,11 @@ with gain ``g`` (relative transmission times photo-response), diattenuation
 ``D = (Tmax - Tmin) / (Tmax + Tmin) = (ER - 1) / (ER + 1)`` (``ER`` the extinction
 ratio), orientation ``theta`` of the pixel's polarizer (radians here, degrees in
 the maps; measured from the image x axis towards the layout's 45-degree
-polarizer, the convention of :mod:`polcam.stokes`) and dark level ``d``.  An
+polarizer, the convention of :mod:`polcam.polarimetry`) and dark level ``d``.  An
 ideal pixel (g = 1, D = 1, theta nominal) reads
 ``(S0 + S1 cos 2t + S2 sin 2t) / 2``, so four ideal pixels at 0, 45, 90 and 135
 degrees give back ``S0 = (I0 + I45 + I90 + I135) / 2``, ``S1 = I0 - I90`` and
-``S2 = I45 - I135`` (:func:`polcam.stokes.stokes`).
+``S2 = I45 - I135`` (:func:`polcam.polarimetry.stokes`).
 
 Each pixel contributes one *measurement row* ``w_k = g_k / 2 [1, D_k cos 2theta_k,
 D_k sin 2theta_k]``; four pixels (a 2x2 super-pixel, or the four angle values of
@@ -24,7 +24,7 @@ estimate is ``S = A x`` with the *analysis matrix* ``A = (W^T W)^-1 W^T``
 The *correction matrix* ``M`` (4x4) maps the four measured values to the values
 four ideal polarizers would have given for the estimated Stokes vector, plus
 the part of the measurement the model does not explain, kept on the
-``(I0 + I90) - (I45 + I135)`` axis so that :func:`polcam.stokes.fit_residual`
+``(I0 + I90) - (I45 + I135)`` axis so that :func:`polcam.polarimetry.fit_residual`
 still flags noise and misregistration::
 
     M = V A + 1/4 s s^T diag(1/g) (I - W A)

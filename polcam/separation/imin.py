@@ -1,6 +1,6 @@
 """``imin``: the polarization minimum as the diffuse layer.
 
-A polarizer at angle t passes ``Ic + Isv cos(2t - 2 phi)`` (polcam.stokes); the
+A polarizer at angle t passes ``Ic + Isv cos(2t - 2 phi)`` (polcam.polarimetry); the
 light that no polarizer orientation removes, ``Imin = Ic - Isv``, is taken as
 the diffuse layer, per channel.  This is the classic polarization-difference
 separation (e.g. Wolff & Boult 1991, Nayar, Fang & Boult 1997) under the
@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from polcam.separation._registry import register
-from polcam.stokes import imin as _imin
+from polcam.polarimetry import imin as _imin
 
 REFERENCE = "L. B. Wolff and T. E. Boult, Constraining object features using a polarization reflectance model, IEEE TPAMI 13(7), 1991"
 

@@ -8,7 +8,7 @@ open, and the measurements behind the defaults.
 Outline (stack ``I`` of shape (4, H, W, 3), angles 0, 45, 90, 135 degrees):
 
 1. Fit ``I(t) = Ic + Isv cos(2t - 2 phi)`` per pixel and channel
-   (:func:`polcam.stokes.fit_sinusoid`).
+   (:func:`polcam.polarimetry.fit_sinusoid`).
 2. Polarization chromaticity (Wen'21, restated as eq. 3 of Shakeri & Zhang):
    ``I_rawS = 2 Isv``, ``I_rawD = max(Ic - I_rawS, 0)``,
    ``I_chro = I_rawD / (sum_RGB I_rawD + mean_p min_RGB Ic)``
@@ -31,7 +31,7 @@ Outline (stack ``I`` of shape (4, H, W, 3), angles 0, 45, 90, 135 degrees):
 5. The diffuse layer is ``M - S`` of every cluster, on the scale of one
    polarization image (``Ic`` is the mean over the four angles).
 
-The diffuse layer is never above :func:`polcam.stokes.imin`; the low-rank term
+The diffuse layer is never above :func:`polcam.polarimetry.imin`; the low-rank term
 removes the unpolarized share of the specular light that ``imin`` leaves in.
 """
 
@@ -43,7 +43,7 @@ import numpy as np
 
 from polcam.errors import MethodError
 from polcam.separation._registry import register
-from polcam.stokes import fit_sinusoid
+from polcam.polarimetry import fit_sinusoid
 
 __all__ = [
     "REFERENCE",

@@ -7,7 +7,7 @@ would record (Malus' law for partially polarized light)::
     I(t) = S0 / 2 * (1 + DoLP * cos(2 t - 2 AoLP))
 
 so ``S0 = (I0 + I45 + I90 + I135) / 2 = I0 + I90``, ``S1 = I0 - I90``,
-``S2 = I45 - I135`` exactly, the conventions of :mod:`polcam.stokes`.  The
+``S2 = I45 - I135`` exactly, the conventions of :mod:`polcam.polarimetry`.  The
 scenes exist to measure demosaicing and the stages after it against a known
 answer: they are full-resolution stacks with every angle (and colour) at every
 pixel, which a sensor never gives.

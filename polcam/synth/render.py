@@ -59,7 +59,7 @@ so the *mean of the four polarizer images equals the radiance* ``L`` (the
 factor 1/2 of an ideal polarizer is taken into the exposure).  Angles ``t`` and
 ``phi`` are measured from the image x axis towards the image's up direction
 (counter-clockwise on the displayed image), the 45-degree polarizer pointing
-to the top-right: the convention of :mod:`polcam.stokes`, whose
+to the top-right: the convention of :mod:`polcam.polarimetry`, whose
 ``fit_sinusoid`` returns ``Ic = L_d + L_s`` and AoLP ``phi_s`` on pure
 specular pixels.
 
@@ -466,7 +466,7 @@ class Rendered:
         (H, W) bool, True on the object.
     aolp_true
         (H, W) float32 AoLP of the specular component in radians, [0, pi),
-        image convention of :mod:`polcam.stokes`; 0 off the object.
+        image convention of :mod:`polcam.polarimetry`; 0 off the object.
     dolp_spec
         (H, W) float32 Fresnel DoLP of the specular component, [0, 1]; 0 off
         the object.

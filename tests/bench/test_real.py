@@ -12,7 +12,7 @@ import pytest
 from polcam.bench.real import OVER_IMIN, achromatic_mask, find_scenes, metrics, prepare, relight, run, write_outputs
 from polcam.cli import main
 from polcam.errors import PolcamError
-from polcam.stokes import synthesize
+from polcam.polarimetry import synthesize
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 HAVE_DATA = bool(find_scenes(DATA)) if DATA.is_dir() else False

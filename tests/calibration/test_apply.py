@@ -13,7 +13,7 @@ from polcam.calibration.store import Calibration, CalibrationError
 from polcam.demosaicing import demosaic
 from polcam.frame import Frame
 from polcam.mosaic import parse_layout
-from polcam.stokes import stokes
+from polcam.polarimetry import stokes
 
 
 def true_calibration(sensor: ImperfectSensor, *, defects: np.ndarray | None = None) -> Calibration:

@@ -9,7 +9,7 @@ import pytest
 
 from polcam.calibration.__main__ import main as module_main
 from polcam.calibration.bench import VARIANTS, format_markdown, run, smooth_scene, stokes_errors
-from polcam.stokes import stokes
+from polcam.polarimetry import stokes
 
 
 @pytest.fixture(scope="module")

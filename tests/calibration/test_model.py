@@ -20,7 +20,7 @@ from polcam.calibration.model import (
     residual_signs,
 )
 from polcam.mosaic import parse_layout
-from polcam.stokes import fit_residual, stokes
+from polcam.polarimetry import fit_residual, stokes
 
 ANG = np.array([0.0, 45.0, 90.0, 135.0])
 
@@ -100,7 +100,7 @@ def test_analysis_matrix_is_the_pseudo_inverse():
     a = analysis_matrices(rows)
     for k in range(5):
         np.testing.assert_allclose(a[k], np.linalg.pinv(rows[k]), atol=1e-12)
-    # ideal sensor: the analysis matrix of polcam.stokes
+    # ideal sensor: the analysis matrix of polcam.polarimetry
     a_ideal = analysis_matrices(ideal_rows(ANG))
     np.testing.assert_allclose(a_ideal, [[0.5, 0.5, 0.5, 0.5], [1, 0, -1, 0], [0, 1, 0, -1]], atol=1e-12)
 

@@ -25,7 +25,7 @@ def test_fake_camera_is_listed():
 def test_missing_aravis_gives_install_instructions():
     # a fresh interpreter with Aravis disabled: polcam imports, the camera command explains itself
     code = (
-        "import polcam, polcam.stokes\n"
+        "import polcam, polcam.polarimetry\n"
         "from polcam.cli import main\n"
         "raise SystemExit(main(['devices']))\n"
     )

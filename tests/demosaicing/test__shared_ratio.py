@@ -14,7 +14,7 @@ from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.demosaicing._shared_ratio import _filter_at_samples, lattice_filter, lattice_smooth, shared_ratio_stage
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
-from polcam.stokes import aolp, dolp
+from polcam.polarimetry import aolp, dolp
 
 MYR = parse_layout("imx250myr")
 MZR = parse_layout("imx250mzr")

@@ -9,7 +9,7 @@ import pytest
 from polcam.demosaicing import DEMOSAIC_METHODS, demosaic, mosaic_stack
 from polcam.frame import Frame
 from polcam.mosaic import Layout, parse_layout
-from polcam.stokes import aolp, dolp, stokes
+from polcam.polarimetry import aolp, dolp, stokes
 from polcam.synth.patterns import uniform_scene
 
 MZR = parse_layout("imx250mzr")

@@ -9,7 +9,7 @@ import pytest
 import polcam.demosaicing.eari as em
 from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.mosaic import Layout, parse_layout
-from polcam.stokes import aolp, dolp, stokes
+from polcam.polarimetry import aolp, dolp, stokes
 from polcam.synth.patterns import make_scene, uniform_scene
 
 MZR = parse_layout("imx250mzr")

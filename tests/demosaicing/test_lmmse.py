@@ -13,7 +13,7 @@ from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.demosaicing.training import training_stack
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
-from polcam.stokes import aolp, dolp
+from polcam.polarimetry import aolp, dolp
 from polcam.synth.patterns import stack_from_stokes, uniform_scene
 
 MZR = parse_layout("imx250mzr")

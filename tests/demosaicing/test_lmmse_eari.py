@@ -9,7 +9,7 @@ import pytest
 import polcam.demosaicing.lmmse_eari as le
 from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.mosaic import Layout, parse_layout
-from polcam.stokes import dolp
+from polcam.polarimetry import dolp
 from polcam.synth.patterns import SCENES, make_scene
 
 MYR = parse_layout("imx250myr")

@@ -8,7 +8,7 @@ import pytest
 
 from polcam.demosaicing.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo, photo_stack, polarize
 from polcam.errors import MethodError
-from polcam.stokes import aolp, dolp
+from polcam.polarimetry import aolp, dolp
 
 
 def test_training_and_validation_photos_are_disjoint() -> None:

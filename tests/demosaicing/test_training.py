@@ -13,7 +13,7 @@ from polcam.demosaicing.lmmse import CANONICAL, lattice_of_taps, tap_offsets
 from polcam.demosaicing.lmmse import apply_bank
 from polcam.demosaicing.training import accumulate, fit_bank, gram_sums, main, pattern_stack, training_stack
 from polcam.mosaic import parse_layout
-from polcam.stokes import dolp
+from polcam.polarimetry import dolp
 
 
 def test_scenes_are_seeded_in_range_and_colours_differ_in_polarization() -> None:

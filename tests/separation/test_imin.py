@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from polcam.separation import separate
-from polcam.stokes import synthesize
+from polcam.polarimetry import synthesize
 
 
 def _scene(rng, shape):

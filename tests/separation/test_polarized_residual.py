@@ -7,7 +7,7 @@ import pytest
 
 import polcam
 from polcam.errors import MethodError
-from polcam.stokes import synthesize
+from polcam.polarimetry import synthesize
 
 
 def _scene(h=48, w=64):

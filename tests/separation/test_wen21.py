@@ -29,7 +29,7 @@ from polcam.separation.wen21 import (
     rpca_ialm,
     separate_wen21,
 )
-from polcam.stokes import fit_sinusoid
+from polcam.polarimetry import fit_sinusoid
 
 ALBEDOS = ((0.8, 0.25, 0.2), (0.2, 0.7, 0.3), (0.25, 0.35, 0.85), (0.75, 0.7, 0.2))
 GREYS = ((0.6, 0.6, 0.6), (0.35, 0.35, 0.35), (0.8, 0.8, 0.8), (0.5, 0.5, 0.5))

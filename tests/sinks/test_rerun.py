@@ -176,9 +176,9 @@ def test_s0_is_logged_as_s0_on_a_fixed_8_bit_scale():
 
 def test_colour_dolp_and_aolp_are_those_of_the_luminance_weighted_stokes_vector():
     from polcam.sinks.rerun import luminance_orientation
-    from polcam.stokes import aolp as st_aolp
-    from polcam.stokes import dolp as st_dolp
-    from polcam.stokes import stokes
+    from polcam.polarimetry import aolp as st_aolp
+    from polcam.polarimetry import dolp as st_dolp
+    from polcam.polarimetry import stokes
     from polcam.synth.patterns import stack_from_stokes
 
     rng = np.random.default_rng(7)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from polcam.errors import MethodError
-from polcam.stokes import aolp, dolp, stokes
+from polcam.polarimetry import aolp, dolp, stokes
 from polcam.synth.patterns import SCENES, make_scene, stack_from_stokes, uniform_scene
 
 N = 96

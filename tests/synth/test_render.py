@@ -17,7 +17,7 @@ import pytest
 
 from polcam.errors import LayoutError, PolcamError
 from polcam.mosaic import parse_layout
-from polcam.stokes import aolp, dolp, fit_sinusoid
+from polcam.polarimetry import aolp, dolp, fit_sinusoid
 from polcam.synth.mesh import Camera, icosphere
 from polcam.synth.render import (
     SceneSpec,

@@ -44,7 +44,7 @@ from polcam.separation.tensor.operators import (
 )
 from polcam.separation.tensor.options import DEVICE_BATCH, INIT_PROCESS_PIXELS, Plan, default_lam, resolve
 from polcam.separation.tensor.tiling import blend, tile_batch, tile_spans
-from polcam.stokes import imin
+from polcam.polarimetry import imin
 
 __all__ = ["separate_tensor", "initial_diffuse", "warm_up"]
 
@@ -82,7 +82,7 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     -------
     diffuse : numpy.ndarray
         (H, W, 3) float64 on the scale of one polarization image, in
-        [0, Imin] of ``stack`` (``Imin = Ic - Isv``, :func:`polcam.stokes.imin`).
+        [0, Imin] of ``stack`` (``Imin = Ic - Isv``, :func:`polcam.polarimetry.imin`).
     info : dict
         Options used, illuminant, representation fill rate, timings, the share
         of values clipped to Imin (``clipped_to_imin``) and the IALM record (iterations, converged, residual, residuals; over tiles:

@@ -10,7 +10,7 @@ from polcam.errors import MethodError
 from polcam.separation import separate
 from polcam.separation.tensor import FAST_TOL, separate_tensor, tile_windows
 from polcam.separation.tensor.driver import initial_diffuse
-from polcam.stokes import synthesize
+from polcam.polarimetry import synthesize
 
 
 def _scene(n=16):
@@ -214,7 +214,7 @@ def _real_crop(whole=False):
 
 def test_diffuse_never_exceeds_imin():
     """Unpolarized light never exceeds the minimum of the polarization sinusoid of its stack."""
-    from polcam.stokes import imin
+    from polcam.polarimetry import imin
 
     stack, D = _scene(20)                           # planted truth: D <= Imin everywhere
     assert np.all(D <= imin(stack) + 1e-12)

@@ -19,7 +19,7 @@ from polcam.separation.tensor.operators import (
     tau_weights,
     unfold,
 )
-from polcam.stokes import fit_sinusoid, synthesize
+from polcam.polarimetry import fit_sinusoid, synthesize
 
 
 def _common_phase_stack(rng, n4=2, h=5, w=6):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from polcam.stokes import (
+from polcam.polarimetry import (
     Stokes,
     aolp,
     dolp,
