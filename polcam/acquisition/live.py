@@ -215,6 +215,9 @@ class LiveProcessor:
                     self.sink.log_stats(index, ts, separation_seconds=dt)
             except Exception as exc:  # noqa: BLE001 - reported, live view goes on
                 self.separation_errors.append(f"frame {index}: {exc}")
+            except KeyboardInterrupt:  # Ctrl-C reached the method's worker processes: the capture is stopping
+                self.separations_skipped += 1
+                return
 
     def _hold_from(self, info: dict[str, Any]) -> None:
         """Keep the illuminant a separation estimated, for the separations that follow."""
