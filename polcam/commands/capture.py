@@ -17,6 +17,7 @@ the summary is written (or its counts printed) as after a clean stop.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
@@ -162,6 +163,11 @@ def cmd_capture(args: argparse.Namespace) -> int:
         from polcam.calibration import load_calibration
 
         calibration = load_calibration(args.calibration)
+    created = out is not None and not out.exists()
+    if out is not None:  # before the camera is touched: a folder that cannot take frames is refused now
+        from polcam.acquisition.saving import check_writable
+
+        check_writable(out)
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         with open_camera(args.device, **camera_options(args)) as cam:
@@ -195,6 +201,11 @@ def cmd_capture(args: argparse.Namespace) -> int:
                 rerun_bind=args.bind, rerun_port=args.port,
                 hold_illuminant=not args.illuminant_each_frame,
             )
+    except BaseException:
+        if created and out is not None:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # refused before any frame: the empty folder made for it goes again
+        raise
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
