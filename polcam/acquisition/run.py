@@ -489,7 +489,8 @@ def run_capture(
         "separations_skipped": live.separations_skipped if live else 0,
         "separation_seconds_mean": (float(np.mean(live.separation_seconds))
                                     if live and live.separation_seconds else None),
-        "separation_errors": live.separation_errors if live else [],
+        "separation_errors": list(live.separation_errors) if live else [],
+        "separation_abandoned": live.separation_abandoned if live else False,
         "duration_s": elapsed,
         "fps": received / elapsed,
         "fps_processed": (live.processed / elapsed) if live else 0.0,
