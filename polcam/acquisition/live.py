@@ -62,19 +62,22 @@ def _start_workers_deaf_to_ctrl_c(method: str) -> int | None:
     return getattr(forkserver._forkserver, "_forkserver_pid", None)
 
 
-def _terminate_children(pid: int) -> int:
-    """SIGTERM the children of process ``pid`` (Linux ``/proc``); returns how many were signalled."""
+def _stop_fork_server(pid: int) -> int:
+    """SIGTERM a fork server and its children, its workers (Linux ``/proc``); returns how many.
+
+    The server goes first, so no new worker is forked meanwhile; the next pool starts a new one.
+    """
     import os
 
     try:
         with open(f"/proc/{pid}/task/{pid}/children", encoding="ascii") as fh:
             children = [int(c) for c in fh.read().split()]
     except (OSError, ValueError):
-        return 0
+        children = []
     n = 0
-    for child in children:
+    for target in (pid, *children):
         try:
-            os.kill(child, signal.SIGTERM)
+            os.kill(target, signal.SIGTERM)
             n += 1
         except OSError:
             pass
@@ -292,9 +295,9 @@ class LiveProcessor:
         skipped, and a separation still running ``abandon_after`` seconds
         later is abandoned (:attr:`separation_abandoned`, counted in
         ``separations_skipped``): a tensor separation of a full frame takes
-        tens of seconds, and a stop must not wait for it.  The worker
-        processes of a fork server this processor started are then sent
-        SIGTERM, so the process can exit.
+        tens of seconds, and a stop must not wait for it.  A fork server this
+        processor started, and its workers, are then sent SIGTERM, so the
+        process can exit (the next pool starts a new server).
         """
         with self._lock:
             if self._pending is not None and not finish:
@@ -315,5 +318,5 @@ class LiveProcessor:
                 self.separation_abandoned = True
                 self.separations_skipped += 1
                 if self._fork_server is not None:
-                    _terminate_children(self._fork_server)
+                    _stop_fork_server(self._fork_server)
                 self._sep_thread.join(5.0)

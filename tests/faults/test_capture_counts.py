@@ -84,20 +84,23 @@ def test_frames_with_loop_and_append_keep_consistent_counts_and_every_summary(tm
         np.testing.assert_array_equal(read_frame(out / name).mosaic, mosaics[side["frame_id"] % 3])
 
 
-def _workers(capture_pid: int) -> list[int]:
-    """Processes of the capture's session that the capture did not start itself: a fork server's
-    workers."""
-    found = []
+def _session(capture_pid: int) -> dict[int, int]:
+    """Processes of the capture's session (it was started in its own): pid -> parent pid."""
+    found = {}
     for d in Path("/proc").iterdir():
         if d.name.isdigit():
             try:
                 fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
             except OSError:
                 continue
-            ppid, sid = int(fields[1]), int(fields[3])  # stat fields 4 and 6
-            if sid == capture_pid and int(d.name) != capture_pid and ppid != capture_pid:
-                found.append(int(d.name))
+            if int(fields[3]) == capture_pid and fields[0] != "Z":  # stat fields 3, 4, 6
+                found[int(d.name)] = int(fields[1])
     return found
+
+
+def _workers(capture_pid: int) -> list[int]:
+    """Processes of the session the capture did not start itself: a fork server's workers."""
+    return [pid for pid, ppid in _session(capture_pid).items() if capture_pid not in (pid, ppid)]
 
 
 def test_ctrl_c_during_a_tensor_separation_stops_without_a_traceback(tmp_path):
@@ -121,12 +124,16 @@ def test_ctrl_c_during_a_tensor_separation_stops_without_a_traceback(tmp_path):
     stdout, stderr = finish(proc, timeout=90)
     after = time.monotonic() - t_int
     assert proc.returncode == 0, stderr
-    # a tensor separation takes tens of seconds here: the stop abandons it after 1 s, not waits
-    assert after < 8, after
+    # waiting for the separation in progress took 25-30 s here; the stop abandons it after 1 s
+    # (seen: 2-6 s from the signal to the exit on this loaded 2-core machine)
+    assert after < 15, after
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["stop_reason"] == "signal SIGINT"
     check_accounted(out, summary, ramp_frames=False)
     assert summary["frames_saved"] == summary["frames_received"] >= 3
     assert summary["separation_abandoned"] or summary["separations"] >= 1
-    assert _workers(proc.pid) == []  # no worker outlives the capture
+    deadline = time.monotonic() + 10
+    while _session(proc.pid) and time.monotonic() < deadline:  # the fork server follows its parent
+        time.sleep(0.1)
+    assert _session(proc.pid) == {}  # no worker outlives the capture
