@@ -449,8 +449,8 @@ def run_capture(
                         saver.put(index, frame, abort=abort)
             else:
                 camera.unread(len(left))
-        if live is not None:
-            live.close(finish=not stop.is_set())
+        if live is not None:  # the newest frame finished on a planned end; on a stop or a fault, not waited for
+            live.close(finish=not stop.is_set() and reason in ("frames", "duration", "end of stream"))
         if saver is not None:
             saver.close(abort=abort.is_set())
         if sink is not None:
@@ -500,6 +500,9 @@ def run_capture(
         "queue_overflow": st.queue_overflow,
         "on_write_error": on_write_error,
         "write_error": saver.write_error if saver else None,
+        # seconds from the first failed write to the end of acquisition
+        "write_error_to_stop_s": (max(0.0, t_end - saver.failed_at)
+                                  if saver is not None and saver.failed_at is not None else None),
         "stream": st.stream,
         "format": save_format if saver else None,
         "out": None if out is None else str(out),

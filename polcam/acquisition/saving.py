@@ -194,6 +194,8 @@ class FrameSaver:
         self.write_error: dict[str, str] | None = None
         #: Set at the first failed write (the capture loop watches it).
         self.failed_event = threading.Event()
+        #: ``time.monotonic()`` of the first failed write, or ``None``.
+        self.failed_at: float | None = None
         self._threads = [threading.Thread(target=self._work, name=f"saver-{i}", daemon=True)
                          for i in range(max(1, int(workers)))]
         for t in self._threads:
@@ -234,6 +236,7 @@ class FrameSaver:
                 with self._lock:
                     self.failed.append({"file": path.name, "error": str(exc)})
                     if self.write_error is None:
+                        self.failed_at = time.monotonic()
                         self.write_error = {"file": path.name, "folder": str(self.out),
                                             "reason": os_reason(exc), "error": str(exc)}
                 self.failed_event.set()

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from polcam.frame import Frame
 from polcam.io import read_frame, read_sidecar, write_frame
@@ -26,6 +27,7 @@ from tests.faults._capture_helpers import (
 )
 
 
+@pytest.mark.slow
 @needs_aravis
 def test_frames_delivered_at_the_stop_are_saved_or_counted(tmp_path):
     runs = {}
@@ -103,6 +105,7 @@ def _workers(capture_pid: int) -> list[int]:
     return [pid for pid, ppid in _session(capture_pid).items() if capture_pid not in (pid, ppid)]
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_a_tensor_separation_stops_without_a_traceback(tmp_path):
     out = tmp_path / "out"
     device = f"replay:{REPO / 'fixtures' / 'raw'}"

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 from tests.faults._capture_helpers import (
     FAKE,
     capture_cmd,
@@ -46,6 +48,7 @@ def test_full_disk_stops_the_capture_at_once_and_says_where_and_why(tmp_path):
         assert summary["stop_reason"] == f"write failed: {out}: No space left on device (ENOSPC)"
         assert summary["duration_s"] < 10
         assert summary["frames_save_failed"] >= 1 and summary["write_error"]["folder"] == str(out)
+        assert summary["write_error_to_stop_s"] < 1.0  # acquisition stopped within a second of the failure
         assert summary["frames_saved"] >= 5
         check_accounted(out, summary)
         if summary["summary_file"] != str(out / "summary.json"):  # the full disk refused it too
@@ -53,6 +56,7 @@ def test_full_disk_stops_the_capture_at_once_and_says_where_and_why(tmp_path):
             assert f"summary written to {summary['summary_file']}" in stderr
 
 
+@pytest.mark.slow
 @needs_aravis
 def test_continue_live_keeps_the_live_view_going_without_saving(tmp_path):
     disk = tmp_path / "disk"
