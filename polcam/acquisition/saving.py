@@ -271,7 +271,7 @@ def clean_stale(out: Path) -> int:
     sidecars without their frame (``frame_NNNNNN.json`` alone); returns how many."""
     n = 0
     frames = {p.stem for p in out.glob(f"{_FRAME_PREFIX}*") if p.suffix != ".json"}
-    stale = [p for p in out.glob(f".{_FRAME_PREFIX}*")]
+    stale = list(out.glob(f".{_FRAME_PREFIX}*"))
     stale += [p for p in out.glob(f"{_FRAME_PREFIX}*.json") if p.stem not in frames]
     for p in stale:
         if p.is_file():
