@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-import signal
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from typing import Any
@@ -104,12 +103,7 @@ def start_workers(preload: Sequence[str] = ()) -> str:
 
 
 def _limit_blas(threads: int, then: Callable[[], None] | None = None) -> None:
-    """Worker initializer: at most ``threads`` BLAS/OpenMP threads for the worker's life, then ``then()``.
-
-    Workers ignore SIGINT: a terminal's Ctrl-C reaches the whole process group, and the parent
-    decides how to stop (a capture's live separation, a batch); SIGTERM and SIGKILL still end them.
-    """
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    """Worker initializer: at most ``threads`` BLAS/OpenMP threads for the worker's life, then ``then()``."""
     threadpool_limits(limits=threads)
     if then is not None:
         then()
