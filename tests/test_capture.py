@@ -478,7 +478,9 @@ def test_sigkill_leaves_no_partial_frame(tmp_path):
     with ReplayCamera(folder) as cam:
         summary = run_capture(cam, out=out, separate=None, append=True)
     assert summary["stale_temporaries_removed"] == len(leftovers) + len(orphans)
-    assert _hidden(out) == [] and not any((out / n).exists() for n in orphans)
+    assert _hidden(out) == []
+    stems = {Path(f).stem for f in _visible_frames(out)}
+    assert {p.stem for p in out.glob("frame_*.json")} == stems  # the orphan went (its number is reused)
 
 
 # ---------------------------------------------------------------------------
