@@ -103,8 +103,12 @@ def _jsonable(obj: Any) -> Any:
     return jsonable(obj)
 
 
-def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False) -> tuple[list[FrameJob], list[dict[str, str]]]:
+def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False,
+         skipped: list[tuple[Path, str]] | None = None) -> tuple[list[FrameJob], list[dict[str, str]]]:
     """The frames to process under ``inputs`` (files or folders) and their targets.
+
+    ``skipped``: where given, paths left out of a recursive listing (symbolic
+    link loops, dangling links, unreadable folders) are appended as ``(path, reason)``.
 
     Returns
     -------
@@ -121,7 +125,7 @@ def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False) -> t
     for root in inputs:
         root = Path(root)
         if root.is_dir():
-            for f in raw_files_in(root, recursive=recursive):
+            for f in raw_files_in(root, recursive=recursive, skipped=skipped):
                 rel = f.relative_to(root).with_suffix("")
                 name = rel.as_posix() if recursive else f.stem
                 if name in jobs:
@@ -366,6 +370,8 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
 def _one_line(exc: BaseException, input_path: str, limit: int = 500) -> str:
     """The error of a failed frame as one line naming the input (at most ``limit`` characters)."""
     text = str(exc) if isinstance(exc, PolcamError) and exc.path else f"{input_path}: {exc}"
+    if isinstance(exc, PolcamError) and exc.path and str(exc.path) != str(input_path):
+        text = f"{input_path}: {exc}"              # e.g. an output file: name the frame too
     if not isinstance(exc, (PolcamError, OSError)):
         text = f"{input_path}: {type(exc).__name__}: {exc}"
     text = " ".join(text.split())

@@ -38,7 +38,10 @@ def cmd_process(args: argparse.Namespace) -> int:
     if args.calibration is not None and not args.calibration.is_file():
         print(f"error: calibration file {args.calibration} not found", file=sys.stderr)
         return 2
-    jobs, problems = proc.plan(args.inputs, args.out, recursive=args.recursive)
+    skipped: list[tuple[Path, str]] = []
+    jobs, problems = proc.plan(args.inputs, args.out, recursive=args.recursive, skipped=skipped)
+    for path, why in skipped:
+        print(f"note: {path}: {why}; skipped", file=sys.stderr)
     missing = [p for p in problems if p["error"] == "no such file or folder"]
     if missing:
         for p in missing:
