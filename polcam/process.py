@@ -506,7 +506,7 @@ def _init_worker() -> None:
 def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         scheduler: str | None = None, force: bool = False,
         on_result: Callable[[dict[str, Any]], None] | None = None,
-        stop: Callable[[], bool] | None = None, abort: Callable[[], bool] | None = None,
+        stop: Callable[[], bool] | None = None, abort: Callable[[], Any] | None = None,
         scheduler_timeout: float = 10.0) -> list[dict[str, Any]]:
     """Process ``jobs``; results in completion order.
 
@@ -529,10 +529,11 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         Polled between frames; when it returns True no new frame is started
         (frames in flight finish).
     abort
-        Polled while frames run; when it returns True the frames in flight
+        Polled while frames run; when it returns true the frames in flight
         are cancelled (status ``"cancelled"``: their workers are killed, and
         they leave no ``meta.json``).  In this process (``workers=1``) a
-        frame is cancelled by a :class:`KeyboardInterrupt` raised during it.
+        frame is cancelled by a :class:`KeyboardInterrupt` raised during it.  A
+        string it returns is the cancelled frames' reason (``"stopped by SIGTERM"``).
     scheduler_timeout
         Seconds to wait for a Dask scheduler given by address.
 
@@ -566,7 +567,7 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
             try:
                 r = process_frame(job, opts, force=force)
             except KeyboardInterrupt:
-                done(_cancelled(job, "cancelled: the run was stopped while the frame was in progress"))
+                done(_cancelled(job, _stopped(abort)))
                 break
             done(r)
     else:
@@ -574,14 +575,14 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
 
         def lost(job: FrameJob, why: Any) -> None:
             if abort() or why.signal in (signal.SIGTERM, signal.SIGINT):
-                done(_cancelled(job, f"cancelled: {why.reason}"))
+                done(_cancelled(job, _stopped(abort) or f"cancelled: {why.reason}"))
             else:
                 done({"input": job.input, "name": job.name, "status": "failed", "seconds": None,
                       "error": f"{job.input}: {why.reason}"})
 
         run_jobs(functools.partial(_frame_task, opts=opts, force=force), jobs, workers,
                  on_result=lambda job, r: done(r), on_lost=lost, stop=stop, abort=abort,
-                 on_cancel=lambda job: done(_cancelled(job, "cancelled: the run was stopped")),
+                 on_cancel=lambda job: done(_cancelled(job, _stopped(abort))),
                  preload=("polcam.process",), initializer=_init_worker)
     return results
 
@@ -590,12 +591,18 @@ def _frame_task(job: FrameJob, *, opts: ProcessOptions, force: bool) -> dict[str
     return process_frame(job, opts, force=force)
 
 
+def _stopped(abort: Callable[[], Any]) -> str:
+    """Why frames in progress were cancelled: what ``abort()`` returned, when it is a string."""
+    why = abort()
+    return f"cancelled: {why}" if isinstance(why, str) and why else "cancelled: the run was stopped"
+
+
 def _cancelled(job: FrameJob, why: str) -> dict[str, Any]:
     return {"input": job.input, "name": job.name, "status": "cancelled", "seconds": None, "error": why}
 
 
 def _run_dask(jobs: Sequence[FrameJob], opts: ProcessOptions, scheduler: Any, force: bool,
-              done: Callable[[dict[str, Any]], None], stop: Callable[[], bool], abort: Callable[[], bool],
+              done: Callable[[dict[str, Any]], None], stop: Callable[[], bool], abort: Callable[[], Any],
               timeout: float) -> None:
     try:
         from distributed import Client, as_completed
@@ -627,7 +634,7 @@ def _run_dask(jobs: Sequence[FrameJob], opts: ProcessOptions, scheduler: Any, fo
             if stop() or abort():
                 for f in pending:
                     f.cancel()
-                    done(_cancelled(futures[f], "cancelled: the run was stopped"))
+                    done(_cancelled(futures[f], _stopped(abort)))
                 break
     finally:
         if own:

@@ -111,7 +111,7 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
 
     workers = max(1, min(args.workers or default_workers(), len(jobs)))
     in_process = workers == 1 and args.scheduler is None
-    state: dict[str, Any] = {"stop": False, "abort": False, "signals": [], "computing": False}
+    state: dict[str, Any] = {"stop": False, "abort": "", "signals": [], "computing": False}
 
     def on_signal(signum: int, _frame: Any) -> None:
         state["signals"].append(signum)
@@ -119,7 +119,8 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
             state["stop"] = True
             print("\nstopping after the frames in progress (Ctrl-C again to stop now)", file=sys.stderr, flush=True)
             return
-        state["stop"] = state["abort"] = True     # a second Ctrl-C, or SIGTERM: stop now
+        state["stop"] = True                      # a second Ctrl-C, or SIGTERM: stop now
+        state["abort"] = "stopped by SIGTERM" if signum == signal.SIGTERM else "stopped by a second Ctrl-C"
         if in_process and state["computing"]:
             state["computing"] = False
             raise KeyboardInterrupt
