@@ -231,43 +231,51 @@ def small_disk(where: Path, size: str) -> Iterator[tuple[Path, Path | None]]:
     on the ordinary disk and a ``sitecustomize`` for the child's PYTHONPATH that makes file creation
     under the folder fail with ENOSPC once ``size`` bytes of files exist there (checked at each
     ``os.open``/``open`` with O_CREAT, the operating-system boundary of the child).
+    ``POLCAM_TEST_NO_MOUNT=1`` takes the second way where mounting works too.
     """
     mnt = where / "disk"
     mnt.mkdir()
     mounted = False
-    if os.geteuid() == 0 and shutil.which("mount"):
+    if os.geteuid() == 0 and shutil.which("mount") and not os.environ.get("POLCAM_TEST_NO_MOUNT"):
         r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(mnt)], capture_output=True)
         mounted = r.returncode == 0
     try:
         if mounted:
             yield mnt, None
         else:
-            site = where / "enospc-site"
-            site.mkdir()
-            limit = _bytes(size)
-            (site / "sitecustomize.py").write_text(textwrap.dedent(f'''
-                import builtins, errno, io, os
-                _ROOT, _LIMIT = {str(mnt)!r}, {limit}
-                def _used():
-                    return sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(_ROOT) for f in fs
-                               if os.path.exists(os.path.join(d, f)))
-                def _check(path, creating):
-                    p = os.path.abspath(os.fsdecode(path)) if isinstance(path, (str, bytes, os.PathLike)) else ""
-                    if creating and p.startswith(_ROOT) and _used() >= _LIMIT:
-                        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), p)
-                _open, _bopen = os.open, builtins.open
-                def _os_open(path, flags, *a, **k):
-                    _check(path, flags & os.O_CREAT)
-                    return _open(path, flags, *a, **k)
-                def _b_open(file, mode="r", *a, **k):
-                    _check(file, any(c in mode for c in "wax"))
-                    return _bopen(file, mode, *a, **k)
-                os.open, builtins.open, io.open = _os_open, _b_open, _b_open
-            '''))
+            site = enospc_site(where, mnt, _bytes(size))
             yield mnt, site
     finally:
         if mounted:
             subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def enospc_site(where: Path, root: Path, limit: int) -> Path:
+    """A ``sitecustomize`` folder for a child's PYTHONPATH: creating a file under ``root`` fails
+    with ENOSPC once ``limit`` bytes of files exist there (at ``os.open``/``open``)."""
+    site = where / f"enospc-site-{limit}"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(textwrap.dedent(f'''
+        import builtins, errno, io, os
+        _ROOT = {str(root)!r}
+        _LIMIT = {int(limit)}
+        def _used():
+            return sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(_ROOT) for f in fs
+                       if os.path.exists(os.path.join(d, f)))
+        def _check(path, creating):
+            p = os.path.abspath(os.fsdecode(path)) if isinstance(path, (str, bytes, os.PathLike)) else ""
+            if creating and p.startswith(_ROOT) and _used() >= _LIMIT:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), p)
+        _open, _bopen = os.open, builtins.open
+        def _os_open(path, flags, *a, **k):
+            _check(path, flags & os.O_CREAT)
+            return _open(path, flags, *a, **k)
+        def _b_open(file, mode="r", *a, **k):
+            _check(file, any(c in mode for c in "wax"))
+            return _bopen(file, mode, *a, **k)
+        os.open, builtins.open, io.open = _os_open, _b_open, _b_open
+    '''))
+    return site
 
 
 def _bytes(size: str) -> int:
