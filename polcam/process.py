@@ -60,7 +60,8 @@ from polcam.pipeline import default_demosaic
 from polcam.sinks.files import FORMATS
 from polcam.outdir import summarize, write_summary
 
-__all__ = ["ProcessOptions", "FrameJob", "OUTPUTS", "check_run", "layout_hint", "plan", "process_frame", "run",
+__all__ = ["ProcessOptions", "FrameJob", "OUTPUTS", "check_run", "connect_scheduler", "layout_hint", "plan",
+           "process_frame", "run",
            "sha256_file", "summarize", "write_summary"]
 
 #: Products written per frame (plus meta.json).
@@ -229,7 +230,7 @@ def _check_memory(job: FrameJob, opts: ProcessOptions) -> None:
     need = frame_memory(*size, colour=colour, resolution=opts.resolution, method=method)
     if need > opts.max_memory:
         raise FrameTooLarge(
-            f"a {size[0]}x{size[1]} frame needs about {need / 2**30:.1f} GiB of memory ({method}, "
+            f"the frame is {size[0]}x{size[1]}: it needs about {need / 2**30:.1f} GiB of memory ({method}, "
             f"{opts.resolution} resolution), more than the limit of {opts.max_memory / 2**30:.1f} GiB; "
             "raise it with --max-memory SIZE (max_memory=, 0: no limit) if the machine has the memory",
             path=job.input)
@@ -601,23 +602,34 @@ def _cancelled(job: FrameJob, why: str) -> dict[str, Any]:
     return {"input": job.input, "name": job.name, "status": "cancelled", "seconds": None, "error": why}
 
 
+def connect_scheduler(address: str, *, timeout: float = 10.0) -> Any:
+    """A ``distributed.Client`` of the Dask scheduler at ``address``.
+
+    Raises
+    ------
+    PolcamError
+        Dask is not installed, or the scheduler does not answer within ``timeout`` seconds (one
+        line naming the address and the reason).
+    """
+    try:
+        from distributed import Client
+    except ImportError:
+        raise PolcamError("--scheduler needs Dask: pip install 'polcam[dask]'") from None
+    try:
+        return Client(address, timeout=timeout)
+    except (OSError, TimeoutError, ValueError) as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise PolcamError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s "
+                          f"({reason[:200]})") from None
+
+
 def _run_dask(jobs: Sequence[FrameJob], opts: ProcessOptions, scheduler: Any, force: bool,
               done: Callable[[dict[str, Any]], None], stop: Callable[[], bool], abort: Callable[[], Any],
               timeout: float) -> None:
-    try:
-        from distributed import Client, as_completed
-    except ImportError:
-        raise PolcamError("--scheduler needs Dask: pip install 'polcam[dask]'") from None
+    from distributed import Client, as_completed
+
     own = not isinstance(scheduler, Client)
-    if own:
-        try:
-            client = Client(scheduler, timeout=timeout)
-        except (OSError, TimeoutError) as exc:
-            reason = " ".join(str(exc).split()) or type(exc).__name__
-            raise PolcamError(f"cannot reach the Dask scheduler at {scheduler} within {timeout:g} s "
-                              f"({reason[:200]})") from None
-    else:
-        client = scheduler
+    client = connect_scheduler(scheduler, timeout=timeout) if own else scheduler
     try:
         futures = {client.submit(process_frame, job, opts, force=force, pure=False,
                                  key=f"polcam-{job.name}-{i}"): job for i, job in enumerate(jobs)}

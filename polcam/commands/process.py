@@ -56,14 +56,26 @@ def cmd_process(args: argparse.Namespace) -> int:
     sizes = _declared_sizes(jobs)
     if args.calibration is not None:
         _check_calibration(args.calibration, sizes)
-    check_output(args.out, frame_bytes=_output_bytes(opts, jobs, sizes))
+    client = None
+    if args.scheduler is not None:  # before anything is created: an unreachable one is exit 2 at once
+        client = proc.connect_scheduler(args.scheduler, timeout=args.scheduler_timeout)
+    try:
+        check_output(args.out, frame_bytes=_output_bytes(opts, jobs, sizes))
+        return _locked(args, opts, jobs, problems, client, default_workers)
+    finally:
+        if client is not None:
+            client.close()
+
+
+def _locked(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[dict[str, str]], client: Any,
+            default_workers: Any) -> int:
     with OutputLock(args.out) as lock:
         if lock.taken_over:
             print(f"note: {args.out}: took over the lock left by PID {lock.taken_over.get('pid')} on "
                   f"{lock.taken_over.get('host')} (no longer running)", file=sys.stderr)
         reserve = SummaryReserve(args.out, len(jobs) + len(problems))
         try:
-            return _run(args, opts, jobs, problems, reserve, default_workers)
+            return _run(args, opts, jobs, problems, reserve, client, default_workers)
         finally:
             reserve.release()
 
@@ -104,7 +116,7 @@ def _output_bytes(opts: Any, jobs: Sequence[Any], sizes: dict[str, tuple[int, in
 
 
 def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[dict[str, str]],
-         reserve: SummaryReserve, default_workers: Any) -> int:
+         reserve: SummaryReserve, client: Any, default_workers: Any) -> int:
     import signal
 
     from polcam import process as proc
@@ -166,7 +178,7 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
             state["computing"] = in_process and not state["stop"]
 
         state["computing"] = in_process
-        proc.run(jobs, opts, workers=workers, scheduler=args.scheduler, force=args.force, on_result=on_result,
+        proc.run(jobs, opts, workers=workers, scheduler=client, force=args.force, on_result=on_result,
                  stop=lambda: state["stop"], abort=lambda: state["abort"])
     finally:
         state["computing"] = False
@@ -241,6 +253,8 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
                                                  "one BLAS thread each)")
     pr.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask distributed cluster "
                                                            "(tcp://host:8786; needs polcam[dask])")
+    pr.add_argument("--scheduler-timeout", type=float, default=5.0, metavar="S",
+                    help="seconds to wait for the Dask scheduler before giving up (default 5)")
     pr.add_argument("--recursive", action="store_true", help="descend into sub-folders (output names "
                                                             "keep the relative path)")
     pr.add_argument("--force", action="store_true", help="redo frames whose outputs are up to date")
