@@ -178,8 +178,11 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
             state["computing"] = in_process and not state["stop"]
 
         state["computing"] = in_process
-        proc.run(jobs, opts, workers=workers, scheduler=client, force=args.force, on_result=on_result,
-                 stop=lambda: state["stop"], abort=lambda: state["abort"])
+        try:
+            proc.run(jobs, opts, workers=workers, scheduler=client, force=args.force, on_result=on_result,
+                     stop=lambda: state["stop"], abort=lambda: state["abort"])
+        except KeyboardInterrupt:  # raised by on_signal between two frames: the summary says what ran
+            pass
     finally:
         state["computing"] = False
         if progress is not None:
