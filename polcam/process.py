@@ -489,8 +489,10 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         from polcam.workpool import run_jobs
 
         def lost(job: FrameJob, why: Any) -> None:
-            if abort() or why.signal in (signal.SIGTERM, signal.SIGINT):
-                done(_cancelled(job, _stopped(abort) or f"cancelled: {why.reason}"))
+            if abort():
+                done(_cancelled(job, _stopped(abort)))
+            elif why.signal in (signal.SIGTERM, signal.SIGINT):   # the signal reached the worker first
+                done(_cancelled(job, f"cancelled: {why.reason}"))
             else:
                 done({"input": job.input, "name": job.name, "status": "failed", "seconds": None,
                       "error": f"{job.input}: {why.reason}"})

@@ -10,16 +10,17 @@ import time
 
 import pytest
 
-from tests.faults._process_helpers import (SLOW, busy_worker, check_accounted, check_consistent, enospc_site,
-                                           finish, kill_group, make_frames, reap_group, run, small_disk, start)
+from tests.faults._process_helpers import (SLOW, check_accounted, check_consistent, enospc_site, finish,
+                                           kill_group, make_frames, reap_group, run, small_disk, start, wait_for)
 
 
 def test_second_run_on_the_same_folder_is_refused_and_a_dead_runs_lock_taken_over(tmp_path):
     frames = make_frames(tmp_path / "raw", 4)
     out = tmp_path / "out"
-    a = start(tmp_path / "raw", out, "--workers", "2", *SLOW)
+    a = start(tmp_path / "raw", out, "--workers", "1", *SLOW)
     try:
-        busy_worker(a.pid)
+        wait_for(lambda: (out / ".polcam-process.lock").is_file() and (out / ".polcam-summary.reserve").is_file(),
+                 60, "the first run to start")
         lock = json.loads((out / ".polcam-process.lock").read_text())
         assert lock["pid"] == a.pid and lock["host"] and lock["started"]
         temps_before = sorted(p.name for p in out.rglob(".*"))

@@ -105,10 +105,10 @@ def test_unreachable_scheduler_fails_fast(tmp_path):
         port = s.getsockname()[1]
     out = tmp_path / "out"
     t0 = time.monotonic()
-    code, _, err = run(tmp_path / "raw", out, "--scheduler", f"tcp://127.0.0.1:{port}", "--scheduler-timeout", "2",
+    code, _, err = run(tmp_path / "raw", out, "--scheduler", f"tcp://127.0.0.1:{port}", "--scheduler-timeout", "1",
                        child=True)
     took = time.monotonic() - t0
     assert code == 2, err
     lines = err.strip().splitlines()
-    assert len(lines) == 1 and f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port} within 2 s" in lines[0]
+    assert len(lines) == 1 and f"cannot reach the Dask scheduler at tcp://127.0.0.1:{port} within 1 s" in lines[0]
     assert took < 15 and not out.exists()

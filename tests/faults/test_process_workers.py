@@ -16,7 +16,7 @@ def test_dead_worker_costs_its_frame_then_ctrl_c_stops_after_the_frames_in_progr
     """kill -9 of a busy worker (what the out-of-memory killer does): its frame is reported failed
     with the reason and the batch goes on; then one SIGINT to the process group (a terminal's
     Ctrl-C) lets the frames in progress finish, starts no new one, writes the summary, exits 130."""
-    frames = make_frames(tmp_path / "raw", 8)
+    frames = make_frames(tmp_path / "raw", 6)
     out = tmp_path / "out"
     p = start(tmp_path / "raw", out, "--workers", "2", *SLOW)
     try:
