@@ -180,9 +180,11 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Iterable[Any], workers: int, *,
     poll
         Seconds between checks of ``stop`` and ``abort``.
     """
+    workers = max(1, int(workers))
     ctx = context(preload)
     it = iter(enumerate(jobs))
     exhausted = False
+    again: list[tuple[int, Any]] = []   # jobs to hand out again (sent to a worker that had died)
     pool: list[_Worker] = []
     try:
         while True:
@@ -195,21 +197,29 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Iterable[Any], workers: int, *,
                         if on_cancel is not None:
                             on_cancel(job)
                 return
-            if not exhausted and not stop():
+            if not (exhausted and not again) and not stop():
                 for w in [w for w in pool if w.job is None] + [None] * (workers - len(pool)):
                     if stop():
                         break
-                    nxt = next(it, None)
+                    nxt = again.pop() if again else next(it, None)
                     if nxt is None:
                         exhausted = True
                         break
                     if w is None:
                         w = _Worker(ctx, fn, blas_threads, initializer)
                         pool.append(w)
+                    try:
+                        w.conn.send(nxt)
+                    except OSError:     # the idle worker had died: the job never started there
+                        again.append(nxt)
+                        pool.remove(w)
+                        w.kill()
+                        continue
                     w.job = nxt
-                    w.conn.send(nxt)
             busy = [w for w in pool if w.job is not None]
             if not busy:
+                if (again or not exhausted) and not stop():
+                    continue        # a job to hand out again, or a worker to start
                 return
             ready = set(wait_ready([w.conn for w in busy] + [w.proc.sentinel for w in busy], timeout=poll))
             for w in busy:

@@ -335,6 +335,7 @@ def declared_size(path: str | PathLike[str]) -> tuple[int, int] | None:
 
             inp = oiio.ImageInput.open(str(p))
             if inp is None:
+                oiio.geterror()  # consumed: the frame's own read reports it
                 return None
             try:
                 spec = inp.spec()
