@@ -328,6 +328,7 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
     t = time.perf_counter()
     file_meta = {"input": job.input, "method": method, "layout": str(frame.layout),
                  "fingerprint": fingerprint, "polcam_version": __version__}
+    _exit_if_orphaned()
     names = write_products(job.target, {name: result.products[name] for name in OUTPUTS}, fmt=opts.format,
                            unit=_UNIT, metadata=file_meta)
     files = {n: _file_record(Path(job.target) / n) for n in names}
@@ -359,12 +360,17 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
         "fingerprint_parts": parts,
         "fingerprint": fingerprint,
     }
-    from polcam.workpool import orphaned
-
-    if orphaned():  # the run that started this worker is gone: a rerun may own the folder now
-        os._exit(1)
+    _exit_if_orphaned()
     write_meta(job.target, meta)
     return meta
+
+
+def _exit_if_orphaned() -> None:
+    """In a worker whose run is gone (a rerun may own the folder now): end before writing anything."""
+    from polcam.workpool import orphaned
+
+    if orphaned():
+        os._exit(1)
 
 
 _CALIBRATIONS: dict[tuple[str, str], Any] = {}
@@ -446,9 +452,10 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
     abort
         Polled while frames run; when it returns true the frames in flight
         are cancelled (status ``"cancelled"``: their workers are killed, and
-        they leave no ``meta.json``).  In this process (``workers=1``) a
-        frame is cancelled by a :class:`KeyboardInterrupt` raised during it.  A
-        string it returns is the cancelled frames' reason (``"stopped by SIGTERM"``).
+        they leave no ``meta.json``).  A string it returns is the cancelled
+        frames' reason (``"stopped by SIGTERM"``).  In this process
+        (``workers=1``) a :class:`KeyboardInterrupt` during a frame reports
+        that frame cancelled to ``on_result`` and propagates.
     scheduler_timeout
         Seconds to wait for a Dask scheduler given by address.
 
@@ -481,9 +488,9 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
                 break
             try:
                 r = process_frame(job, opts, force=force)
-            except KeyboardInterrupt:
+            except KeyboardInterrupt:  # reported, then passed on: the caller decides what it means
                 done(_cancelled(job, _stopped(abort)))
-                break
+                raise
             done(r)
     else:
         from polcam.workpool import run_jobs
