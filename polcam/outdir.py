@@ -18,7 +18,6 @@ disk that fills during the run still gets its summary.
 from __future__ import annotations
 
 import errno
-import fcntl
 import json
 import os
 import socket
@@ -31,6 +30,11 @@ from typing import Any
 
 from polcam import __version__
 from polcam.errors import FrameWriteError, PolcamError
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX: the PID in the lock file decides
+    fcntl = None  # type: ignore[assignment]
 
 __all__ = ["LOCK_NAME", "OutputLock", "OutputLocked", "SummaryReserve", "check_output", "summarize",
            "write_summary"]
@@ -121,7 +125,8 @@ class OutputLock:
                 raise FrameWriteError(f"cannot create the lock file: {exc.strerror or exc}",
                                       path=self.path) from exc
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                if fcntl is not None:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 info = self._read(fd)
                 os.close(fd)
