@@ -181,7 +181,7 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
         try:
             proc.run(jobs, opts, workers=workers, scheduler=client, force=args.force, on_result=on_result,
                      stop=lambda: state["stop"], abort=lambda: state["abort"])
-        except KeyboardInterrupt:  # raised by on_signal between two frames: the summary says what ran
+        except KeyboardInterrupt:  # raised by on_signal to stop now (run() reported the frame cancelled)
             pass
     finally:
         state["computing"] = False
