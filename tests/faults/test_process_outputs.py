@@ -3,12 +3,15 @@ mid-frame, a file changed afterwards), and a rerun never calls a half-written fr
 
 from __future__ import annotations
 
+import random
 import shutil
 import signal
 import time
 from pathlib import Path
 
-from tests.faults._process_helpers import (check_accounted, check_consistent, finish, kill_group, make_frames,
+import pytest
+
+from tests.faults._process_helpers import (SLOW, check_accounted, check_consistent, finish, kill_group, make_frames,
                                            reap_group, run, slow_writes_site, small_disk, start, summary,
                                            wait_for)
 
@@ -88,3 +91,26 @@ def test_a_changed_output_file_is_not_up_to_date(tmp_path):
     by = check_accounted(out, frames)
     assert by["done"] == {"f00.npy"} and by["skipped"] == {"f01.npy", "f02.npy"}
     assert len(check_consistent(out)) == 3
+
+
+@pytest.mark.slow
+def test_kill_9_at_random_moments_soak(tmp_path):
+    """Eight kill -9s of the process group at random moments of runs that alternate between cell and
+    full resolution: after each, every folder matches its meta.json; a last run finishes them all."""
+    frames = make_frames(tmp_path / "raw", 6)
+    out = tmp_path / "out"
+    rng = random.Random(29)
+    for i in range(8):
+        res = ("cell", "full")[i % 2]
+        p = start(tmp_path / "raw", out, "--workers", "2", "--resolution", res, *SLOW)
+        try:
+            time.sleep(rng.uniform(1.0, 6.0))
+            kill_group(p, signal.SIGKILL)
+            finish(p)
+        finally:
+            reap_group(p)
+        check_consistent(out)
+    code, _, err = run(tmp_path / "raw", out, "--workers", "2", *SLOW, child=True)
+    assert code == 0, err
+    check_accounted(out, frames)
+    assert len(check_consistent(out)) == 6
