@@ -231,7 +231,10 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
                     "method and options, version, timings, solver info, fingerprint); OUT/summary.json "
                     "for the run. Resumable: frames whose outputs match their input and options are "
                     "skipped (--force redoes them). Bad inputs are reported and skipped; the exit "
-                    "status is then 1.")
+                    "status is then 1. Exit 2: refused before any work (output folder locked by another "
+                    "run, not writable or full, bad calibration, unreachable scheduler); 130: stopped by "
+                    "Ctrl-C (the first lets the frames in progress finish, a second stops now); 143: "
+                    "stopped by SIGTERM. docs/reliability.md lists every fault.")
     pr.add_argument("inputs", nargs="+", type=Path, help="raw frame files or folders")
     pr.add_argument("-o", "--out", type=Path, required=True, help="output folder")
     pr.add_argument("--layout", help="sensor layout; overrides the sidecar (imx250mzr, imx250myr, "
