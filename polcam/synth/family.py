@@ -27,15 +27,17 @@ of seeds (the ``validation`` split, fixed) and reported on another (the
 * **exposure**: log-uniform in [0.25, 3]: dark scenes to scenes whose
   diffuse clips (``exposure`` in :attr:`FamilyScene.params`);
 * **background**: black, or a Lambertian grey or tinted backdrop plane;
-* **camera**: shot noise (full well log-uniform in [4000, 30000] electrons),
-  read noise (2-10 electrons), clipping at 1 and 12-bit quantisation applied
-  to the raw IMX250MYR mosaic (and, for the mono stack, an IMX250MZR mosaic of
-  the luminance), then polcam's default demosaicing, clipped to [0, 1]: what
-  a camera gives polcam.
+* **camera**: the scene rendered on a sensor twice the stack's side; shot
+  noise (full well log-uniform in [4000, 30000] electrons), read noise (2-10
+  electrons), clipping at 1 and 12-bit quantisation applied to the raw
+  IMX250MYR mosaic (and, for the mono stack, an IMX250MZR mosaic of the
+  luminance), then polcam's default demosaicing at the polarizer-cell
+  resolution (what ``polcam process`` separates by default), clipped to
+  [0, 1]: what a camera gives polcam.
 
 Ground truth: ``diffuse = clip(L_d, 0, 1)``, the noise-free diffuse radiance
 (the mean of its four polarizer images; :mod:`polcam.synth.render`), summed
-over the lights; ``diffuse_mono`` its mean over R, G and B (the luminance a
+over the lights, averaged over 2 x 2 sensor pixels; ``diffuse_mono`` its mean over R, G and B (the luminance a
 mono sensor with a flat response sees).
 
 Splits (:func:`split_seeds`): ``validation`` is the seeds 0, 1, 2, ...
@@ -178,13 +180,13 @@ class FamilyScene:
     diffuse_mono
         (H, W) float32: ``diffuse.mean(-1)``.
     ideal
-        (4, H, W, 3) float32: the noise-free stack before the camera (not
-        clipped: values above 1 are light the sensor clips).
+        (4, H, W, 3) float32: the noise-free stack before the camera, 2 x 2
+        means (not clipped: values above 1 are light the sensor clips).
     mask
-        (H, W) bool, the object.
+        (H, W) bool, the object (at least half of the 2 x 2 sensor pixels).
     clipped
-        (H, W) bool: pixels where any of the ideal stack's 12 samples is at or
-        above 1 (the sensor's white level).
+        (H, W) bool: pixels where any of the 12 samples of any of their 2 x 2
+        sensor pixels is at or above 1 (the sensor's white level).
     dolp_diffuse
         (H, W) float32: the diffuse light's degree of linear polarization
         (grey, noise-free).
@@ -379,7 +381,8 @@ def _specs(p: dict[str, Any]) -> list[SceneSpec]:
 
 
 def _camera(raw_clean: np.ndarray, layout: str, rng: np.random.Generator, p: dict[str, Any]) -> np.ndarray:
-    """Noise, clipping and quantisation of a raw mosaic, then the default demosaicing, clipped."""
+    """Noise, clipping and quantisation of a raw mosaic, then the default demosaicing at the
+    polarizer-cell resolution (``polcam process``'s default), clipped to [0, 1]."""
     from polcam.demosaicing import demosaic
 
     fw = p["full_well"]
@@ -387,18 +390,32 @@ def _camera(raw_clean: np.ndarray, layout: str, rng: np.random.Generator, p: dic
     e += rng.normal(0.0, p["read_noise"], size=e.shape)
     top = float(2 ** p["bit_depth"] - 1)
     raw = np.round(np.clip(e / fw, 0.0, 1.0) * top) / top
-    return np.clip(demosaic(raw.astype(np.float32), layout=layout), 0.0, 1.0).astype(np.float32)
+    return np.clip(demosaic(raw.astype(np.float32), layout=layout, resolution="cell"), 0.0, 1.0
+                   ).astype(np.float32)
+
+
+def _cells(a: np.ndarray, axes: tuple[int, int]) -> np.ndarray:
+    """Mean over 2 x 2 blocks along two axes (sides halved)."""
+    y, x = axes
+    shp = list(a.shape)
+    shp[y:y + 1] = [shp[y] // 2, 2]
+    shp[x + 1:x + 2] = [shp[x + 1] // 2, 2]
+    return a.reshape(shp).mean(axis=(y + 1, x + 2))
 
 
 def render_family(seed: int, *, size: int = 128) -> FamilyScene:
     """Render the family's scene ``seed`` and pass it through the colour and mono cameras.
+
+    The scene is rendered on a sensor of ``2 size`` pixels a side and demosaiced at the
+    polarizer-cell resolution, as ``polcam process`` does by default, to ``size``; the truth
+    is the 2 x 2 mean of the rendered truth.
 
     Parameters
     ----------
     seed
         Scene seed (:func:`split_seeds`), >= 0.
     size
-        Image side in pixels, a multiple of 4, at least 16.
+        Side of the stacks in pixels, even, at least 16.
 
     Returns
     -------
@@ -413,12 +430,14 @@ def render_family(seed: int, *, size: int = 128) -> FamilyScene:
     from polcam.demosaicing import mosaic_stack
     from polcam.polarimetry import dolp
 
-    if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 16 or size % 4:
-        raise PolcamError(f"size {size!r}: expected a multiple of 4, at least 16 (the IMX250MYR cell is 4 x 4)")
+    if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 16 or size % 2:
+        raise PolcamError(f"size {size!r}: expected an even integer, at least 16 (the sensor is twice that, "
+                          "a whole number of 4 x 4 IMX250MYR cells)")
     p = draw(seed)
+    n = 2 * int(size)
     ideal = diffuse = mask = None
     for spec in _specs(p):
-        r = render(spec, size=int(size), seed=0)
+        r = render(spec, size=n, seed=0)
         if r.info["max_radiance"] * 2 >= 1.0:  # (1 + DoLP) <= 2: no sample reached the render's clip
             raise AssertionError(f"scene {p['seed']}: headroom too small")  # pragma: no cover
         stack = r.stack.astype(np.float64) * _HEADROOM
@@ -430,17 +449,18 @@ def render_family(seed: int, *, size: int = 128) -> FamilyScene:
     # the diffuse DoLP depends on the emission angle and the refractive index only, not on the light:
     # take it from a matte copy lit by the ambient term alone (every object pixel lit)
     matte = render(dataclasses.replace(_specs(p)[0], ks=0.0, light_intensity=0.0, ambient=0.5 / _HEADROOM),
-                   size=int(size), seed=0)
-    dpol = dolp(matte.stack.astype(np.float64).mean(axis=-1)).astype(np.float32)
+                   size=n, seed=0)
+    dpol = dolp(_cells(matte.stack.astype(np.float64).mean(axis=-1), (1, 2))).astype(np.float32)
     rng = np.random.default_rng(p["noise_seed"])
     stack = _camera(mosaic_stack(ideal, layout="imx250myr"), "imx250myr", rng, p)
     mono = _camera(mosaic_stack(ideal.mean(axis=-1), layout="imx250mzr"), "imx250mzr", rng, p)
-    truth = np.clip(diffuse, 0.0, 1.0).astype(np.float32)
+    truth = _cells(np.clip(diffuse, 0.0, 1.0), (0, 1)).astype(np.float32)
+    clipped = _cells((ideal >= 1.0).any(axis=(0, 3)).astype(np.float64), (0, 1)) > 0
+    obj = _cells(mask.astype(np.float64), (0, 1)) >= 0.5
     return FamilyScene(
         name=scene_name(seed), seed=int(seed), stack=stack, mono_stack=mono, diffuse=truth,
-        diffuse_mono=truth.mean(axis=-1), ideal=ideal.astype(np.float32), mask=mask,
-        clipped=(ideal >= 1.0).any(axis=(0, 3)), dolp_diffuse=np.where(mask, dpol, 0.0).astype(np.float32),
-        params=p,
+        diffuse_mono=truth.mean(axis=-1), ideal=_cells(ideal, (1, 2)).astype(np.float32), mask=obj,
+        clipped=clipped, dolp_diffuse=np.where(obj, dpol, 0.0).astype(np.float32), params=p,
     )
 
 

@@ -92,8 +92,10 @@ def test_diffuse_light_is_polarized_at_the_rims_by_fresnel():
 def test_truth_is_the_noise_free_diffuse_under_the_light():
     seed = next(s for s in range(40) if draw(s)["ks"] == 0)
     sc = render_family(seed, size=48)
-    # no specular: the diffuse truth is the mean of the ideal stack, clipped at 1
-    np.testing.assert_allclose(sc.diffuse, np.clip(sc.ideal.mean(axis=0), 0, 1), atol=1e-5)
+    # no specular: the diffuse truth is the mean of the ideal stack wherever nothing clips
+    ok = ~sc.clipped
+    assert ok.mean() > 0.5
+    np.testing.assert_allclose(sc.diffuse[ok], sc.ideal.mean(axis=0)[ok], atol=1e-5)
     np.testing.assert_allclose(sc.diffuse_mono, sc.diffuse.mean(axis=-1), atol=1e-6)
     assert sc.stack.shape == (4, 48, 48, 3) and sc.mono_stack.shape == (4, 48, 48)
     assert 0 <= sc.stack.min() and sc.stack.max() <= 1
