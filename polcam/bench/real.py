@@ -436,6 +436,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         "tinted, tinted+overexposed; polcam.bench.relit) with the no-harm measures: matte "
                         "achromatic kept, brightest 1 %% removed, specular spread, structure invented in "
                         "clipped regions")
+    p.add_argument("--variants", nargs="+", help="with --relit: only these variants (default: all)")
     p.add_argument("--mono", action="store_true",
                    help="with --relit: the mono camera (the stacks' luminance through an IMX250MZR mosaic) "
                         "and the methods that take mono stacks")
@@ -456,8 +457,8 @@ def run_args(args: argparse.Namespace) -> int:
         return 2
     if args.relit:
         return _run_relit(args, data)
-    if args.mono:
-        print("error: --mono needs --relit", file=sys.stderr)
+    if args.mono or args.variants:
+        print("error: --mono and --variants need --relit", file=sys.stderr)
         return 2
     try:
         scores, layers = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
@@ -483,7 +484,8 @@ def _run_relit(args: argparse.Namespace, data: Path) -> int:
         return 2
     try:
         scores = relit.run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
-                           scale=0.5 if args.scale is None else args.scale, mono=args.mono)
+                           scale=0.5 if args.scale is None else args.scale, mono=args.mono,
+                           variants=args.variants)
     except PolcamError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
