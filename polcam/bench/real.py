@@ -477,6 +477,7 @@ def _run_relit(args: argparse.Namespace, data: Path) -> int:
     import json
     import sys
 
+    from polcam._jsonable import jsonable
     from polcam.bench import relit
 
     if args.exposure != 1.0 or tuple(args.light) != (1.0, 1.0, 1.0):
@@ -496,8 +497,8 @@ def _run_relit(args: argparse.Namespace, data: Path) -> int:
     with atomic_write(out / "relit.md", "w") as fh:
         fh.write(table + "\n")
     with atomic_write(out / "relit.json", "w") as fh:
-        fh.write(json.dumps({"rows": [vars(s) for s in scores], "summary": relit.summary(scores)}, indent=1,
-                            default=float) + "\n")
+        fh.write(json.dumps(jsonable({"rows": [vars(s) for s in scores], "summary": relit.summary(scores)}),
+                            indent=1) + "\n")
     print(f"wrote {out / 'relit.md'}\nwrote {out / 'relit.json'}")
     return 0
 
