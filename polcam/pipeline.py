@@ -122,20 +122,9 @@ def products(stack: np.ndarray, names: Iterable[str] = tuple(PRODUCTS)) -> dict[
     unknown = [n for n in names if n not in PRODUCTS]
     if unknown:
         raise ValueError(f"unknown products {unknown}: expected names among {', '.join(PRODUCTS)}")
-    s = st.stokes(stack)
-    out: dict[str, np.ndarray] = {}
-    for name in names:
-        if name.startswith("i"):
-            out[name] = stack[("i000", "i045", "i090", "i135").index(name)]
-        elif name in ("s0", "s1", "s2"):
-            out[name] = getattr(s, name)
-        elif name == "dolp":
-            out[name] = st.dolp(s)
-        elif name == "aolp":
-            out[name] = st.aolp(s)
-        else:
-            out[name] = st.fit_residual(stack)
-    return out
+    m = st.maps(stack, [n for n in names if not n.startswith("i")])
+    views = ("i000", "i045", "i090", "i135")
+    return {name: stack[views.index(name)] if name.startswith("i") else m[name] for name in names}
 
 
 def separate_layers(stack: np.ndarray, *, method: str | None = None,
