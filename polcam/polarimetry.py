@@ -27,9 +27,9 @@ functions and :func:`polcam.pipeline.products` go through it.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -39,6 +39,7 @@ __all__ = [
     "Stokes",
     "Sinusoid",
     "maps",
+    "maps_together",
     "stokes",
     "dolp",
     "aolp",
@@ -117,25 +118,25 @@ def _magnitude(a: np.ndarray, b: np.ndarray, out: np.ndarray, tmp: np.ndarray) -
 
 
 def _strip(src: tuple[np.ndarray, ...], from_stack: bool, outs: dict[str, np.ndarray],
-           a: int, b: int, scratch: dict[str, np.ndarray]) -> None:
-    """The maps of elements ``a:b`` (flat) of the sources, into ``outs``.
+           scratch: dict[str, np.ndarray]) -> None:
+    """The maps of one strip of the sources (1-D, the four intensities or S0, S1, S2) into ``outs``.
 
     The operations and their order are those of the closed forms in the module
     docstring, element by element, so the maps do not depend on the strip size.
     """
-    n = b - a
+    n = src[0].size
     dt = src[0].dtype.type
     half, zero, one, pi = dt(0.5), dt(0.0), dt(1.0), dt(np.pi)
 
     def buf(name: str, slot: str) -> np.ndarray:
         if name in outs:
-            return outs[name][a:b]
+            return outs[name]
         return scratch[slot][:n]
 
     need_s12 = any(k in outs for k in ("s1", "s2", "dolp", "aolp", "isv", "imin", "imax"))
     need_s0 = any(k in outs for k in ("s0", "dolp", "ic", "imin", "imax"))
     if from_stack:
-        i0, i1, i2, i3 = (p[a:b] for p in src)
+        i0, i1, i2, i3 = src
         if need_s0:
             s0 = buf("s0", "s0")
             np.add(i0, i1, out=s0)
@@ -146,16 +147,16 @@ def _strip(src: tuple[np.ndarray, ...], from_stack: bool, outs: dict[str, np.nda
             s1 = np.subtract(i0, i2, out=buf("s1", "s1"))
             s2 = np.subtract(i1, i3, out=buf("s2", "s2"))
         if "residual" in outs:
-            r = outs["residual"][a:b]
+            r = outs["residual"]
             t = scratch["t"][:n]
             np.add(i0, i2, out=r)
             r -= np.add(i1, i3, out=t)
     else:
-        s0, s1, s2 = (p[a:b] for p in src)
+        s0, s1, s2 = src
     if any(k in outs for k in ("dolp", "isv", "imin", "imax")):
         mag = _magnitude(s1, s2, scratch["mag"][:n], scratch["t"][:n])
         if "dolp" in outs:
-            d = outs["dolp"][a:b]
+            d = outs["dolp"]
             with np.errstate(divide="ignore", invalid="ignore"):
                 np.divide(mag, s0, out=d)
             d[~(s0 > zero)] = zero
@@ -164,13 +165,13 @@ def _strip(src: tuple[np.ndarray, ...], from_stack: bool, outs: dict[str, np.nda
             isv = np.multiply(mag, half, out=buf("isv", "isv"))
             ic = np.multiply(s0, half, out=buf("ic", "ic"))
             if "imin" in outs:
-                np.subtract(ic, isv, out=outs["imin"][a:b])
+                np.subtract(ic, isv, out=outs["imin"])
             if "imax" in outs:
-                np.add(ic, isv, out=outs["imax"][a:b])
+                np.add(ic, isv, out=outs["imax"])
     if "ic" in outs and not any(k in outs for k in ("isv", "imin", "imax")):
-        np.multiply(s0, half, out=outs["ic"][a:b])
+        np.multiply(s0, half, out=outs["ic"])
     if "aolp" in outs:
-        ang = outs["aolp"][a:b]
+        ang = outs["aolp"]
         np.arctan2(s2, s1, out=ang)
         ang *= half
         # mod pi of a value in [-pi/2, pi/2], rounded as numpy's mod rounds it: + pi where it is
@@ -183,20 +184,36 @@ def _strip(src: tuple[np.ndarray, ...], from_stack: bool, outs: dict[str, np.nda
         ang[ang >= pi] = zero  # the sum can round up to exactly pi for tiny negative inputs
 
 
-def _run(src: tuple[np.ndarray, ...], from_stack: bool, names: tuple[str, ...],
-         shape: tuple[int, ...]) -> dict[str, np.ndarray]:
+class _Request(NamedTuple):
+    names: tuple[str, ...]
+    dtype: np.dtype
+    clip: tuple[float, float] | None
+
+
+def _run(src: tuple[np.ndarray, ...], from_stack: bool, requests: list[_Request],
+         shape: tuple[int, ...]) -> list[dict[str, np.ndarray]]:
     flat = tuple(np.ascontiguousarray(p).reshape(-1) for p in src)
-    dt = flat[0].dtype
     n = flat[0].size
-    outs = {k: np.empty(n, dtype=dt) for k in names}
+    outs = [{k: np.empty(n, dtype=r.dtype) for k in r.names} for r in requests]
     chunk = min(_CHUNK, max(n, 1))
     starts = list(range(0, n, chunk))
     workers = _threads(n)
 
     def job(part: list[int]) -> None:
-        scratch = {k: np.empty(chunk, dtype=dt) for k in ("s0", "s1", "s2", "t", "mag", "isv", "ic")}
+        scratch = [{k: np.empty(chunk, dtype=r.dtype) for k in ("s0", "s1", "s2", "t", "mag", "isv", "ic")}
+                   for r in requests]
+        inputs = [tuple(np.empty(chunk, dtype=r.dtype) for _ in flat) for r in requests]
         for a in part:
-            _strip(flat, from_stack, outs, a, min(a + chunk, n), scratch)
+            b = min(a + chunk, n)
+            for r, out, sc, buf in zip(requests, outs, scratch, inputs, strict=True):
+                strips = tuple(p[a:b] for p in flat)
+                if r.clip is not None or strips[0].dtype != r.dtype:
+                    strips = tuple(np.copyto(q[:b - a], p, casting="unsafe") or q[:b - a]
+                                   for q, p in zip(buf, strips, strict=True))
+                    if r.clip is not None:
+                        for q in strips:
+                            np.clip(q, r.clip[0], r.clip[1], out=q)
+                _strip(strips, from_stack, {k: v[a:b] for k, v in out.items()}, sc)
 
     if workers == 1:
         job(starts)
@@ -205,10 +222,25 @@ def _run(src: tuple[np.ndarray, ...], from_stack: bool, names: tuple[str, ...],
         with ThreadPoolExecutor(max_workers=workers) as pool:
             for fut in [pool.submit(job, starts[i:i + size]) for i in range(0, len(starts), size)]:
                 fut.result()
-    return {k: v.reshape(shape) for k, v in outs.items()}
+    return [{k: v.reshape(shape) for k, v in out.items()} for out in outs]
 
 
-def maps(stack: np.ndarray, names: Iterable[str] = ("s0", "dolp", "aolp")) -> dict[str, np.ndarray]:
+def _request(stack_dtype: np.dtype, names: Iterable[str], dtype: Any = None,
+             clip: tuple[float, float] | None = None) -> _Request:
+    names = tuple(dict.fromkeys(names))
+    unknown = [n for n in names if n not in MAPS]
+    if unknown:
+        raise ValueError(f"unknown maps {unknown}: expected names among {', '.join(MAPS)}")
+    dt = np.dtype(stack_dtype if dtype is None else dtype)
+    if dt.kind != "f":
+        raise ValueError(f"maps dtype {dt}: expected a float dtype")
+    if clip is not None:
+        clip = (float(clip[0]), float(clip[1]))
+    return _Request(names, dt, clip)
+
+
+def maps(stack: np.ndarray, names: Iterable[str] = ("s0", "dolp", "aolp"), *, dtype: Any = None,
+         clip: tuple[float, float] | None = None) -> dict[str, np.ndarray]:
     """Several polarization maps of a stack in one fused pass.
 
     The stack is read once, strip by strip (on up to four threads for large
@@ -225,30 +257,52 @@ def maps(stack: np.ndarray, names: Iterable[str] = ("s0", "dolp", "aolp")) -> di
         integers become float32.
     names
         Keys of :data:`MAPS`.
+    dtype
+        Float dtype the maps are computed and returned in (default: the
+        stack's; float64 from a float32 stack is computed strip by strip, with
+        no float64 copy of the stack).
+    clip
+        ``(low, high)``: the intensities are clipped to this range first (NaN
+        stays NaN), as ``maps(np.clip(stack, low, high))`` without the copy.
 
     Returns
     -------
     dict
-        ``name -> array`` of the stack's trailing shape and float dtype.
+        ``name -> array`` of the stack's trailing shape, in ``dtype``.
 
     Raises
     ------
     ValueError
         A stack without four angles on its first axis, or an unknown name.
     """
-    names = tuple(dict.fromkeys(names))
-    unknown = [n for n in names if n not in MAPS]
-    if unknown:
-        raise ValueError(f"unknown maps {unknown}: expected names among {', '.join(MAPS)}")
     i = _check(stack)
-    return _run(tuple(i), True, names, i.shape[1:])
+    return _run(tuple(i), True, [_request(i.dtype, names, dtype, clip)], i.shape[1:])[0]
+
+
+def maps_together(stack: np.ndarray, *requests: Mapping[str, Any]) -> list[dict[str, np.ndarray]]:
+    """Several :func:`maps` requests on one stack, in one pass over it.
+
+    Each request is a mapping with ``names`` and optionally ``dtype`` and
+    ``clip`` (the keywords of :func:`maps`); the results equal those of
+    separate :func:`maps` calls.  The pipeline uses it to compute a frame's
+    products (float32, the stack as it is) and a separation method's sinusoid
+    fit (float64, the stack clipped to [0, 1]) while the stack is read once.
+
+    Returns
+    -------
+    list of dict
+        One ``name -> array`` dict per request, in order.
+    """
+    i = _check(stack)
+    reqs = [_request(i.dtype, r["names"], r.get("dtype"), r.get("clip")) for r in requests]
+    return _run(tuple(i), True, reqs, i.shape[1:])
 
 
 def _from_stokes(s: Stokes, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     parts = np.broadcast_arrays(*(np.asarray(p) for p in s))
     dt = np.result_type(*parts, np.float32)
     parts = [p.astype(dt, copy=False) for p in parts]
-    return _run(tuple(parts), False, names, parts[0].shape)
+    return _run(tuple(parts), False, [_request(dt, names)], parts[0].shape)[0]
 
 
 def stokes(stack: np.ndarray) -> Stokes:
@@ -290,15 +344,17 @@ def aolp(stack_or_stokes: np.ndarray | Stokes) -> np.ndarray:
     return _one(stack_or_stokes, "aolp")
 
 
-def fit_sinusoid(stack: np.ndarray) -> Sinusoid:
+def fit_sinusoid(stack: np.ndarray, *, dtype: Any = None) -> Sinusoid:
     """Least-squares fit of ``I(t) = Ic + Isv cos(2t - 2 phi)`` to the four angles.
+
+    ``dtype``: as :func:`maps` (default the stack's float dtype).
 
     Returns
     -------
     Sinusoid
         ``ic`` = S0 / 2, ``isv`` = sqrt(S1^2 + S2^2) / 2 >= 0, ``phi`` = AoLP in [0, pi).
     """
-    m = maps(stack, ("ic", "isv", "aolp"))
+    m = maps(stack, ("ic", "isv", "aolp"), dtype=dtype)
     return Sinusoid(m["ic"], m["isv"], m["aolp"])
 
 
