@@ -13,7 +13,10 @@ asks: ``polcam process`` (:mod:`polcam.process`), ``polcam stokes``,
   S0 = (I0 + I45 + I90 + I135) / 2; DoLP in [0, 1]; AoLP in [0, pi)).
 - :func:`separate_layers` runs a separation method on the stack clipped to
   [0, 1] (diffuse and specular on the scale of one polarization image).
-- :func:`run_frame` chains them and times each step.
+- :func:`run_frame` chains them and times each step.  The Stokes maps are
+  computed once per frame: a separation method that takes a precomputed
+  sinusoid fit (:func:`takes_fit`, e.g. ``wen21``) gets the one made in the
+  same pass over the stack as the products.
 - :func:`live_maps` is the live view's cheaper route to the same quantities
   at the polarizer-cell resolution (a few fused OpenCV passes over the four
   angle planes, no float stack): S0/2, DoLP, AoLP and the ``imin`` layers.
@@ -49,6 +52,7 @@ __all__ = [
     "require_layout",
     "run_frame",
     "separate_layers",
+    "takes_fit",
     "to_stack",
 ]
 
@@ -135,6 +139,31 @@ def separate_layers(stack: np.ndarray, *, method: str | None = None,
     return separate(np.clip(stack, 0.0, 1.0), method=method, **dict(options or {}))
 
 
+def takes_fit(method: str | None, stack_shape: tuple[int, ...]) -> bool:
+    """Whether the separation ``method`` (None: the default for the stack's form) takes a precomputed
+    sinusoid fit (its ``fit`` option), which :func:`run_frame` then computes in the pass that makes
+    the frame's maps instead of the method fitting the stack again."""
+    from polcam.errors import MethodError
+    from polcam.separation._registry import check_options, default_method, input_form
+
+    try:
+        name = method if method is not None else default_method(input_form(stack_shape))
+        check_options(name, {"fit": None})
+    except MethodError:
+        return False
+    return True
+
+
+def _products_and_fit(stack: np.ndarray, names: tuple[str, ...]) -> tuple[dict[str, np.ndarray], st.Sinusoid]:
+    """:func:`products` and the float64 fit (Ic, Isv) of the stack clipped to [0, 1], in one pass:
+    the fit a method would compute from what :func:`separate_layers` hands it."""
+    m, f = st.maps_together(stack, {"names": [n for n in names if not n.startswith("i")]},
+                            {"names": ("ic", "isv"), "dtype": np.float64, "clip": (0.0, 1.0)})
+    views = ("i000", "i045", "i090", "i135")
+    out = {name: stack[views.index(name)] if name.startswith("i") else m[name] for name in names}
+    return out, st.Sinusoid(f["ic"], f["isv"], None)  # type: ignore[arg-type]  # phi: not needed
+
+
 @dataclass
 class FrameResult:
     """What :func:`run_frame` made of one frame.
@@ -193,12 +222,20 @@ def run_frame(frame: Frame, *, calibration: Calibration | None = None, layout: s
     stack = to_stack(frame, layout=layout, method=demosaic, resolution=resolution)
     timings["demosaic"] = time.perf_counter() - t
     t = time.perf_counter()
-    out = products(stack, stokes_products)
+    options = dict(method_options or {})
+    if separate and "fit" not in options and takes_fit(method, stack.shape):
+        names = tuple(stokes_products)
+        unknown = [n for n in names if n not in PRODUCTS]
+        if unknown:
+            raise ValueError(f"unknown products {unknown}: expected names among {', '.join(PRODUCTS)}")
+        out, options["fit"] = _products_and_fit(stack, names)
+    else:
+        out = products(stack, stokes_products)
     timings["stokes"] = time.perf_counter() - t
     res = None
     if separate:
         t = time.perf_counter()
-        res = separate_layers(stack, method=method, options=method_options)
+        res = separate_layers(stack, method=method, options=options)
         timings["separate"] = time.perf_counter() - t
         out["diffuse"], out["specular"] = res.diffuse, res.specular
     return FrameResult(frame=frame, stack=stack, products=out, separation=res, timings=timings)

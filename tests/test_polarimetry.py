@@ -202,3 +202,18 @@ def test_fused_maps_refuse_unknown_names():
 
     with pytest.raises(ValueError, match="unknown maps.*'dolq'"):
         polarimetry.maps(np.zeros((4, 2, 2), np.float32), ["dolq"])
+
+
+def test_maps_together_equal_separate_calls_with_dtype_and_clip():
+    from polcam import polarimetry
+
+    rng = np.random.default_rng(4)
+    i = rng.uniform(-0.2, 1.3, (4, 300, 401, 3)).astype(np.float32)  # some values outside [0, 1]
+    a, b = polarimetry.maps_together(i, {"names": ("s0", "dolp")},
+                                     {"names": ("ic", "isv"), "dtype": np.float64, "clip": (0.0, 1.0)})
+    np.testing.assert_array_equal(a["s0"], polarimetry.maps(i, ["s0"])["s0"])
+    ref = polarimetry.maps(np.clip(i, 0, 1).astype(np.float64), ["ic", "isv"])
+    for k in ("ic", "isv"):
+        assert b[k].dtype == np.float64
+        np.testing.assert_array_equal(b[k], ref[k])
+    assert not np.array_equal(b["ic"], polarimetry.maps(i.astype(np.float64), ["ic"])["ic"])
