@@ -282,9 +282,13 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
     -------
     dict
         ``status`` ("done", "skipped" or "failed"), ``input``, ``name``,
-        ``seconds``, and ``error`` (failed) or ``fingerprint`` (done/skipped).
+        ``seconds``, and ``error`` (failed) or ``fingerprint`` (done/skipped);
+        a done frame adds ``peak_rss_mb``, the largest resident memory of the
+        process while it computed the frame (:mod:`polcam._memory`).
     """
     from threadpoolctl import threadpool_limits
+
+    from polcam._memory import peak_rss_mb, reset_peak
 
     t0 = time.perf_counter()
     base = {"input": job.input, "name": job.name}
@@ -295,10 +299,11 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
         if not force and _is_done(job, opts, fingerprint):
             return {**base, "status": "skipped", "fingerprint": fingerprint,
                     "seconds": time.perf_counter() - t0}
+        reset_peak()  # the frame's own peak memory (polcam._memory)
         with threadpool_limits(limits=1, user_api="blas"):
             _compute(job, opts, frame, method, method_options, parts, fingerprint, t0)
         return {**base, "status": "done", "fingerprint": fingerprint,
-                "seconds": time.perf_counter() - t0}
+                "seconds": time.perf_counter() - t0, "peak_rss_mb": round(peak_rss_mb(), 1)}
     except Exception as exc:  # a bad frame never stops the batch: it is reported by name
         text = str(exc) if isinstance(exc, PolcamError) and exc.path else f"{job.input}: {exc}"
         if not isinstance(exc, (PolcamError, OSError)):
@@ -506,6 +511,7 @@ def summarize(results: Iterable[dict[str, Any]], problems: Sequence[dict[str, st
         "failed": failed + list(problems),
         "interrupted": interrupted,
         "seconds": seconds,
+        "peak_rss_mb": max((r["peak_rss_mb"] for r in results if "peak_rss_mb" in r), default=None),
         "results": [{k: v for k, v in r.items() if k != "error"} for r in results],
     }
 

@@ -22,6 +22,7 @@ def cmd_process(args: argparse.Namespace) -> int:
     import signal
 
     from polcam import process as proc
+    from polcam._memory import auto_workers
     from polcam.parallel import default_workers
 
     opts = proc.ProcessOptions(
@@ -92,7 +93,8 @@ def cmd_process(args: argparse.Namespace) -> int:
             progress.update(task, advance=1, rate=f"{counter['n'] / max(elapsed, 1e-9) * 60:.1f} frames/min")
 
     try:
-        workers = max(1, min(args.workers or default_workers(), len(jobs)))
+        workers = max(1, min(args.workers or auto_workers(opts.method, opts.resolution, default_workers()),
+                             len(jobs)))
         results = proc.run(jobs, opts, workers=workers,
                            scheduler=args.scheduler, force=args.force, on_result=on_result,
                            stop=lambda: interrupted)
@@ -153,8 +155,9 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     pr.add_argument("--calibration", type=Path, help="calibration file (polcam calibrate)")
     pr.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="also write the run as a Rerun "
                                                                     "recording, one time step per frame")
-    pr.add_argument("--workers", type=int, help="local worker processes (default: the number of cores; "
-                                                 "one BLAS thread each)")
+    pr.add_argument("--workers", type=int, help="local worker processes (default: the number of cores, "
+                                                 "fewer where the available memory holds fewer workers "
+                                                 "of the method's measured peak; one BLAS thread each)")
     pr.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask distributed cluster "
                                                            "(tcp://host:8786; needs polcam[dask])")
     pr.add_argument("--recursive", action="store_true", help="descend into sub-folders (output names "
