@@ -25,8 +25,11 @@ __all__ = ["METHOD_PEAK_MB", "auto_workers", "available_mb", "peak_rss_mb", "res
 #: Peak RSS of one ``polcam process`` worker (MB) for a 2448 x 2048 colour frame at the default
 #: cell resolution, per method, as measured (docs/benchmarks.md, "Speed: maps and separation");
 #: methods not listed use :data:`_OTHER_PEAK_MB`.
-METHOD_PEAK_MB: dict[str, float] = {}
-_OTHER_PEAK_MB = 1200.0
+METHOD_PEAK_MB: dict[str, float] = {
+    "imin": 562.0, "wen21": 929.0, "yang10": 971.0, "polarized-residual": 1355.0,
+    "tensor": 1276.0, "tensor-tau": 1276.0, "tensor-plain": 1276.0,
+}
+_OTHER_PEAK_MB = 1400.0
 #: The share of the available memory the workers may take together.
 _USABLE = 0.8
 
