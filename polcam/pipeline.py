@@ -251,7 +251,6 @@ _BAYER_TO_RGB = {
     "GRBG": cv2.COLOR_BayerGRBG2RGB,
     "GBRG": cv2.COLOR_BayerGBRG2RGB,
 }
-_TWO_PI = float(2.0 * np.pi)
 
 
 @dataclass
@@ -316,13 +315,12 @@ def _scale(a: np.ndarray, factor: float, offset: float = 0.0, dtype: int = cv2.C
 
 
 def _orientation(s0: np.ndarray, s1: np.ndarray, s2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(|(S1, S2)|, DoLP clipped to [0, 1], AoLP in [0, pi)) of single-channel float32 maps."""
-    mag, ang = cv2.cartToPolar(s1, s2)
-    dolp = cv2.divide(mag, s0)  # OpenCV gives 0 where S0 is 0
-    dolp = cv2.max(cv2.min(dolp, 1.0), 0.0)
-    # the angle of (S1, S2) is in [0, 2 pi]; 2 pi is the orientation of 0
-    ang = cv2.threshold(ang, _TWO_PI * (1.0 - 1e-7), 0.0, cv2.THRESH_TOZERO_INV)[1]
-    return mag, dolp, _scale(ang, 0.5)
+    """(|(S1, S2)|, DoLP clipped to [0, 1], AoLP in [0, pi)) of single-channel float32 maps: the
+    fused kernel of :func:`polcam.polarimetry.maps`, the same as every other route."""
+    m = st.maps_from_stokes(st.Stokes(s0, s1, s2), ("isv", "dolp", "aolp"))
+    mag = m["isv"]
+    mag *= np.float32(2.0)  # |(S1, S2)| = 2 Isv exactly
+    return mag, m["dolp"], m["aolp"]
 
 
 def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
@@ -335,8 +333,8 @@ def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
 
     Mono sensors: exactly ``polcam.polarimetry`` (``stokes``, ``dolp``, ``aolp``,
     ``imin``) of ``polcam.demosaic(..., resolution="cell")`` up to float32
-    rounding (AoLP through OpenCV's ``cartToPolar``, within 1e-4 rad), and the
-    ``imin`` separation of that stack.
+    rounding (DoLP and AoLP by the same fused kernel, :func:`polcam.polarimetry.maps`),
+    and the ``imin`` separation of that stack.
 
     Colour sensors (each angle's cell image is a Bayer mosaic): Ic, Imin and
     the specular part are computed per colour sample, rounded to 8 bits and

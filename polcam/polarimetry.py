@@ -39,6 +39,7 @@ __all__ = [
     "Stokes",
     "Sinusoid",
     "maps",
+    "maps_from_stokes",
     "maps_together",
     "stokes",
     "dolp",
@@ -296,6 +297,28 @@ def maps_together(stack: np.ndarray, *requests: Mapping[str, Any]) -> list[dict[
     i = _check(stack)
     reqs = [_request(i.dtype, r["names"], r.get("dtype"), r.get("clip")) for r in requests]
     return _run(tuple(i), True, reqs, i.shape[1:])
+
+
+def maps_from_stokes(s: Stokes, names: Iterable[str] = ("dolp", "aolp")) -> dict[str, np.ndarray]:
+    """:func:`maps` of given Stokes parameters (``dolp``, ``aolp``, ``isv``, ``ic``, ``imin``,
+    ``imax``, and ``s0``/``s1``/``s2`` themselves), by the same fused kernel.
+
+    Parameters
+    ----------
+    s
+        S0, S1, S2 of one (broadcastable) shape, float (integers become float32).
+    names
+        Keys of :data:`MAPS` except ``residual`` (it needs the four intensities).
+
+    Returns
+    -------
+    dict
+        ``name -> array`` of the Stokes parameters' shape.
+    """
+    names = tuple(dict.fromkeys(names))
+    if "residual" in names:
+        raise ValueError("the fit residual needs the four intensities: use maps(stack) for it")
+    return _from_stokes(s, names)
 
 
 def _from_stokes(s: Stokes, names: tuple[str, ...]) -> dict[str, np.ndarray]:

@@ -16,6 +16,11 @@ Inputs (all from fixtures/raw, nothing random):
   (48, 48)) at the cell resolution ((4, 80, 80, 3)), for ``wen21`` and ``polarized-residual`` only (their
   diffuse layers), stored as ``input/bunny``.
 
+The ``live/aolp/*`` and ``live/dolp/*`` arrays were then rewritten deliberately: the live route
+takes its DoLP and AoLP from the fused kernel of :mod:`polcam.polarimetry` (AoLP by atan2
+instead of OpenCV's approximation, which was up to 1e-4 rad off; DoLP 0 where S0 is 0, where
+OpenCV's 0/0 had given 1).
+
 Outputs: ``sep/<method>/<form>/{diffuse,specular}`` for every separation
 method and form it takes; ``demosaic/<method>/<form>/<resolution>`` for every
 demosaicing method; ``maps/<fn>/<form>`` for the polarimetry functions;
