@@ -651,7 +651,7 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
 
     # pixels as columns, sorted by cluster: each cluster's matrices are contiguous column
     # ranges, gathered once for all
-    ic_t, isv_t, raw_t = (np.ascontiguousarray(a[order].T) for a in (ic, isv, raw_s))
+    ic_t, isv_t, raw_t = (np.take(a.T, order, axis=1) for a in (ic, isv, raw_s))
     diffuse_t = np.empty_like(ic_t)
 
     def cluster(k: int) -> tuple[int, bool]:
