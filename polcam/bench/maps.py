@@ -7,7 +7,7 @@ process, each timed best of ``repeat``:
 
 * ``polanalyser``: polanalyser's ``demosaicing`` (its bilinear OpenCV route),
   ``calcStokes`` with the four polarizer angles, ``cvtStokesToDoLP`` and
-  ``cvtStokesToAoLP``;
+  ``cvtStokesToAoLP`` (as its users run it: counts, colour in OpenCV's BGR order);
 * ``polcam bilinear``: :func:`polcam.demosaic` with ``method="bilinear"``
   and :func:`polcam.pipeline.products` (``s0``, ``dolp``, ``aolp``: one fused
   pass, :func:`polcam.polarimetry.maps`);
