@@ -107,7 +107,11 @@ _PARALLEL_MIN = 1 << 20   # below this many elements one thread does it all
 def _threads(n: int) -> int:
     if n < _PARALLEL_MIN:
         return 1
-    return max(1, min(4, os.cpu_count() or 1, n // _PARALLEL_MIN))
+    try:
+        cpus = len(os.sched_getaffinity(0))  # the CPUs this process may run on
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(4, cpus, n // _PARALLEL_MIN))
 
 
 def _magnitude(a: np.ndarray, b: np.ndarray, out: np.ndarray, tmp: np.ndarray) -> np.ndarray:
