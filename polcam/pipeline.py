@@ -15,7 +15,7 @@ asks: ``polcam process`` (:mod:`polcam.process`), ``polcam stokes``,
   [0, 1] (diffuse and specular on the scale of one polarization image).
 - :func:`run_frame` chains them and times each step.  The Stokes maps are
   computed once per frame: a separation method that takes a precomputed
-  sinusoid fit (:func:`takes_fit`, e.g. ``wen21``) gets the one made in the
+  sinusoid fit (its ``fit`` option, e.g. ``wen21``) gets the one made in the
   same pass over the stack as the products.
 - :func:`live_maps` is the live view's cheaper route to the same quantities
   at the polarizer-cell resolution (a few fused OpenCV passes over the four
@@ -52,7 +52,6 @@ __all__ = [
     "require_layout",
     "run_frame",
     "separate_layers",
-    "takes_fit",
     "to_stack",
 ]
 
@@ -139,7 +138,7 @@ def separate_layers(stack: np.ndarray, *, method: str | None = None,
     return separate(np.clip(stack, 0.0, 1.0), method=method, **dict(options or {}))
 
 
-def takes_fit(method: str | None, stack_shape: tuple[int, ...]) -> bool:
+def _takes_fit(method: str | None, stack_shape: tuple[int, ...]) -> bool:
     """Whether the separation ``method`` (None: the default for the stack's form) takes a precomputed
     sinusoid fit (its ``fit`` option), which :func:`run_frame` then computes in the pass that makes
     the frame's maps instead of the method fitting the stack again."""
@@ -223,7 +222,7 @@ def run_frame(frame: Frame, *, calibration: Calibration | None = None, layout: s
     timings["demosaic"] = time.perf_counter() - t
     t = time.perf_counter()
     options = dict(method_options or {})
-    if separate and "fit" not in options and takes_fit(method, stack.shape):
+    if separate and "fit" not in options and _takes_fit(method, stack.shape):
         names = tuple(stokes_products)
         unknown = [n for n in names if n not in PRODUCTS]
         if unknown:

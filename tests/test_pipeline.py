@@ -91,7 +91,7 @@ def test_run_frame_hands_wen21_the_fit_of_its_maps_pass(monkeypatch):
     seen = []
     real = wen21_mod._fit
     monkeypatch.setattr(wen21_mod, "_fit", lambda arr: seen.append(arr.shape) or real(arr))
-    assert pipeline.takes_fit("wen21", (4, 8, 8, 3)) and not pipeline.takes_fit("imin", (4, 8, 8, 3))
+    assert pipeline._takes_fit("wen21", (4, 8, 8, 3)) and not pipeline._takes_fit("imin", (4, 8, 8, 3))
     res = pipeline.run_frame(frame, resolution="cell", separate=True, method="wen21")
     assert seen == []  # the method did not fit the stack again
     alone = polcam.separate(np.clip(res.stack, 0, 1), method="wen21")
