@@ -261,6 +261,8 @@ def summarize(results: Iterable[dict[str, Any]], problems: Sequence[dict[str, st
     ``failed`` (with its error), ``cancelled`` (in progress when the run was
     stopped) or ``not_started`` (the run was stopped first).  ``planned``:
     the run's jobs (:class:`polcam.process.FrameJob`), for ``not_started``.
+    ``peak_rss_mb``: the largest of the done frames' peak memory (None when
+    no frame was computed).
     """
     from polcam._jsonable import jsonable
 
@@ -279,6 +281,7 @@ def summarize(results: Iterable[dict[str, Any]], problems: Sequence[dict[str, st
         "not_started": not_started,
         "interrupted": interrupted,
         "seconds": seconds,
+        "peak_rss_mb": max((r["peak_rss_mb"] for r in results if "peak_rss_mb" in r), default=None),
         "results": [{k: v for k, v in r.items() if k != "error"} for r in results],
     }
 

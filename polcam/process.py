@@ -260,9 +260,13 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
     -------
     dict
         ``status`` ("done", "skipped" or "failed"), ``input``, ``name``,
-        ``seconds``, and ``error`` (failed) or ``fingerprint`` (done/skipped).
+        ``seconds``, and ``error`` (failed) or ``fingerprint`` (done/skipped);
+        a done frame adds ``peak_rss_mb``, the largest resident memory of the
+        process while it computed the frame (:mod:`polcam._memory`).
     """
     from threadpoolctl import threadpool_limits
+
+    from polcam._memory import peak_rss_mb, reset_peak
 
     t0 = time.perf_counter()
     base = {"input": job.input, "name": job.name}
@@ -274,10 +278,11 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
             return {**base, "status": "skipped", "fingerprint": fingerprint,
                     "seconds": time.perf_counter() - t0}
         _unmark_finished(target)
+        reset_peak()  # the frame's own peak memory (polcam._memory)
         with threadpool_limits(limits=1, user_api="blas"):
             _compute(job, opts, frame, method, method_options, parts, fingerprint, t0)
         return {**base, "status": "done", "fingerprint": fingerprint,
-                "seconds": time.perf_counter() - t0}
+                "seconds": time.perf_counter() - t0, "peak_rss_mb": round(peak_rss_mb(), 1)}
     except Exception as exc:  # a bad frame never stops the batch: it is reported by name
         return {**base, "status": "failed", "error": _one_line(exc, job.input), "seconds": time.perf_counter() - t0}
 

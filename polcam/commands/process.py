@@ -21,6 +21,7 @@ __all__ = ["add_parser", "cmd_process"]
 
 def cmd_process(args: argparse.Namespace) -> int:
     from polcam import process as proc
+    from polcam._memory import auto_workers
     from polcam.footprint import default_max_memory, parse_size
     from polcam.parallel import default_workers
 
@@ -121,7 +122,7 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
 
     from polcam import process as proc
 
-    workers = max(1, min(args.workers or default_workers(), len(jobs)))
+    workers = max(1, min(args.workers or auto_workers(opts.method, opts.resolution, default_workers()), len(jobs)))
     in_process = workers == 1 and args.scheduler is None
     state: dict[str, Any] = {"stop": False, "abort": "", "signals": [], "computing": False}
 
@@ -255,8 +256,9 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     pr.add_argument("--calibration", type=Path, help="calibration file (polcam calibrate)")
     pr.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="also write the run as a Rerun "
                                                                     "recording, one time step per frame")
-    pr.add_argument("--workers", type=int, help="local worker processes (default: the number of cores; "
-                                                 "one BLAS thread each)")
+    pr.add_argument("--workers", type=int, help="local worker processes (default: the number of cores, "
+                                                 "fewer where the available memory holds fewer workers "
+                                                 "of the method's measured peak; one BLAS thread each)")
     pr.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask distributed cluster "
                                                            "(tcp://host:8786; needs polcam[dask])")
     pr.add_argument("--scheduler-timeout", type=float, default=5.0, metavar="S",
