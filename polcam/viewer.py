@@ -8,13 +8,16 @@ PATH is one of
   ``meta.json``) is read back from disk (diffuse, specular, s0, dolp, aolp
   as ``.exr`` or ``.tif``; the raw frame named in ``meta.json`` when it still
   exists), in name order, one ``frame`` time step each;
+* a ``polcam demo`` output folder: its ``demo.rrd``, else its ``layers/``;
 * a folder of raw frames: each is demosaiced (:func:`polcam.demosaic` with
   the default method, at the polarizer-cell resolution as ``polcam process``
   does by default) and separated with the default method for its form
   (:func:`polcam.separate` without a method) on the fly.
 
+The path is checked (:func:`resolve`) before any viewer or server starts.
 Everything is logged through :class:`polcam.sinks.rerun.RerunSink`, with the
-same entity paths, encodings and blueprint as a live capture.  Without
+same entity paths, encodings and blueprint as a batch (a live capture's, without
+its statistics plots).  Without
 ``--web`` the native viewer opens (it needs a display); with ``--web``
 Rerun's web viewer is served (:class:`polcam.sinks.rerun.WebServer`) on
 127.0.0.1 unless ``--bind`` says otherwise, the URL to open is printed, and
@@ -262,7 +265,7 @@ def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "
     Parameters
     ----------
     path
-        An ``.rrd``, a process output folder or a raw folder (:func:`kind_of`).
+        An ``.rrd``, a process or demo output folder, or a raw folder (:func:`resolve`).
     web
         Serve the web viewer instead of opening the native one.
     port, bind, memory_limit
@@ -279,6 +282,12 @@ def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "
     -------
     int
         Exit status: 0.
+
+    Raises
+    ------
+    PolcamError
+        A path :func:`resolve` refuses, or a ``--web`` port already in use
+        (both before anything is served).
     """
     from polcam.sinks.rerun import RerunSink
     from polcam.sinks.rerun_web import WebServer, native_viewer
