@@ -33,7 +33,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
 
-__all__ = ["EXPECTED", "PRODUCTS", "check_recording", "frame_folders", "kind_of", "log_path", "resolve", "Target", "view"]
+__all__ = ["EXPECTED", "PRODUCTS", "Target", "check_recording", "frame_folders", "kind_of", "log_path", "resolve",
+           "view"]
 
 
 #: What ``polcam view`` takes, said in every refusal.
@@ -143,7 +144,7 @@ def resolve(path: str | Path) -> Target:
     if not (p / "meta.json").is_file():
         if (p / "demo.rrd").is_file():
             return resolve(p / "demo.rrd")
-        if (p / "layers").is_dir() and (p / "capture").is_dir() and _is_processed_folder(p / "layers"):
+        if (p / "layers").is_dir() and _is_processed_folder(p / "layers"):
             return resolve(p / "layers")
     if _is_processed_folder(p):
         _check_frame_folders(p)
