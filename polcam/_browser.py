@@ -282,7 +282,7 @@ def viewer_screenshot(url: str, *, accept: Callable[[np.ndarray], bool], timeout
         shot, ok = page.wait_for(accept, timeout=timeout)
         if ok and settle > 0:
             time.sleep(settle)
-            shot = page.screenshot()
+            shot, _ = page.wait_for(lambda _shot: True, timeout=timeout)  # retried while the page is busy
         return shot, ok
 
 
