@@ -331,7 +331,8 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
     timings: dict[str, float] = {"read": read_seconds + result.timings["calibrate"],
                                  **{k: v for k, v in result.timings.items() if k != "calibrate"}}
     t = time.perf_counter()
-    file_meta = {"input": job.input, "method": method, "layout": str(frame.layout),
+    source = os.path.abspath(job.input)  # meta.json names the raw frame from wherever it is read
+    file_meta = {"input": source, "method": method, "layout": str(frame.layout),
                  "fingerprint": fingerprint, "polcam_version": __version__}
     _exit_if_orphaned()
     names = write_products(job.target, {name: result.products[name] for name in OUTPUTS}, fmt=opts.format,
@@ -341,7 +342,7 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
     assert result.separation is not None
     info = {k: v for k, v in result.separation.info.items() if k not in ("residuals",)}
     meta = {
-        "input": job.input,
+        "input": source,
         "input_sha256": parts["input_sha256"],
         "name": job.name,
         "outputs": names,
@@ -406,7 +407,7 @@ class RunRecording:  # RERUN SINK (process --rerun): to become the shared polcam
         from polcam.sinks.rerun import RerunSink
 
         self._index = {n: i for i, n in enumerate(names)}
-        self._sink = RerunSink(path, raw_every=1, view_scale=1.0)
+        self._sink = RerunSink(path, raw_every=1, view_scale=1.0, live=False)
 
     def log_frame(self, folder: Path, ext: str, name: str) -> None:
         """Log the outputs of one finished frame (``ext``: kept for callers; any format is read)."""
