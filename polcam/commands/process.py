@@ -21,7 +21,6 @@ __all__ = ["add_parser", "cmd_process"]
 
 def cmd_process(args: argparse.Namespace) -> int:
     from polcam import process as proc
-    from polcam._memory import auto_workers
     from polcam.footprint import default_max_memory, parse_size
     from polcam.parallel import default_workers
 
@@ -121,6 +120,8 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
     import signal
 
     from polcam import process as proc
+
+    from polcam._memory import auto_workers
 
     workers = max(1, min(args.workers or auto_workers(opts.method, opts.resolution, default_workers()), len(jobs)))
     in_process = workers == 1 and args.scheduler is None
