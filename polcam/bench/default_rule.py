@@ -14,15 +14,24 @@ Colour stacks:
    :data:`INVENTED_MAX` on every stack and variant (about the demosaicing's own
    variation inside a clipped region; ``imin``, which only reads the samples,
    scores 0.003);
-3. of the methods that pass, the best mean object PSNR of the diffuse on the
+3. **it separates**: on the real stacks it removes at least as much of the
+   brightest 1 % (``top_removed``) as the reference baseline
+   :data:`HIGHLIGHT_REFERENCE` and its specular layer's colour spread is no
+   wider (the dichromatic model's one specular colour).  A method that
+   removes only the polarized light (``imin``) keeps every surface but leaves
+   the unpolarized part of each highlight in the diffuse and puts the
+   polarized part of the diffuse light in the specular layer; this step keeps
+   such a method from winning on harm alone.  Where the reference was not
+   measured (mono) the step is skipped;
+4. of the methods that pass, the best mean object PSNR of the diffuse on the
    randomized family's ``validation`` split;
-4. if none passes, the highest matte achromatic kept (the lowest over
+5. if none passes, the highest matte achromatic kept (the lowest over
    variants of the mean over stacks) among the methods whose specular colour
    spread is at most :data:`SPREAD_FALLBACK`.
 
 Mono stacks: the same, with the figures of the mono camera (the real stacks'
 luminance through an IMX250MZR mosaic, the family's luminance truth); where
-the table holds no real figures for a mono method, step 3 alone.
+the table holds no real figures for a mono method, step 4 alone.
 
 ``python -m polcam.bench.default_rule --real R [--real R2] [--real-mono RM] --validation V
 --validation-mono M --out FILE`` assembles the table from the outputs of ``polcam bench real
@@ -43,7 +52,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MATTE_KEPT_MEAN", "MATTE_KEPT_EACH", "INVENTED_MAX", "SPREAD_FALLBACK", "passes", "pick",
+__all__ = ["MATTE_KEPT_MEAN", "MATTE_KEPT_EACH", "INVENTED_MAX", "SPREAD_FALLBACK", "HIGHLIGHT_REFERENCE",
+           "passes", "pick",
            "pick_all", "build_table"]
 
 #: Least matte achromatic kept on the mean over the real stacks, in every variant.
@@ -54,14 +64,23 @@ MATTE_KEPT_EACH = 0.85
 INVENTED_MAX = 0.01
 #: Fallback: the most specular colour spread a method may have.
 SPREAD_FALLBACK = 0.05
+#: Step 3's reference: the baseline whose highlight removal and specular colour spread a default
+#: must match (the polarization-chromaticity method of Wen et al. 2021).
+HIGHLIGHT_REFERENCE = "wen21"
 
 
-def passes(row: dict[str, Any]) -> bool:
-    """Whether a method's row passes steps 1 and 2 (no harm on real frames, nothing invented)."""
+def passes(row: dict[str, Any], reference: dict[str, Any] | None = None) -> bool:
+    """Whether a method's row passes steps 1-3 (no harm on real frames, nothing invented, separates).
+
+    ``reference``: the row of :data:`HIGHLIGHT_REFERENCE` (None: step 3 is skipped).
+    """
     if "matte_kept_min_mean" not in row:
-        return True   # no real figures (a mono method without a mono real table): step 3 alone
-    return bool(row["matte_kept_min_mean"] >= MATTE_KEPT_MEAN and row["matte_kept_min"] >= MATTE_KEPT_EACH
-                and row["invented_max"] <= INVENTED_MAX)
+        return True   # no real figures (a mono method without a mono real table): step 4 alone
+    ok = (row["matte_kept_min_mean"] >= MATTE_KEPT_MEAN and row["matte_kept_min"] >= MATTE_KEPT_EACH
+          and row["invented_max"] <= INVENTED_MAX)
+    if ok and reference is not None and "top_removed" in reference:
+        ok = row["top_removed"] >= reference["top_removed"] and row["spread"] <= reference["spread"]
+    return bool(ok)
 
 
 def pick(rows: dict[str, dict[str, Any]]) -> tuple[str, str]:
@@ -80,7 +99,8 @@ def pick(rows: dict[str, dict[str, Any]]) -> tuple[str, str]:
     """
     if not rows:
         raise ValueError("no methods in the rule table")
-    ok = [m for m, r in rows.items() if passes(r) and np.isfinite(r.get("validation_psnr", np.nan))]
+    ref = rows.get(HIGHLIGHT_REFERENCE)
+    ok = [m for m, r in rows.items() if passes(r, ref) and np.isfinite(r.get("validation_psnr", np.nan))]
     if ok:
         best = max(ok, key=lambda m: rows[m]["validation_psnr"])
         return best, (f"passes the real checks ({', '.join(ok)} do) and has the best validation mean "
@@ -123,7 +143,7 @@ def build_table(real: Sequence[Path], validation: Path, validation_mono: Path, *
     validation, validation_mono
         ``scores.csv`` of ``polcam bench quality --set random --split validation`` (and ``--mono``).
     real_mono
-        ``relit.json`` files of ``polcam bench real --relit --mono`` (none: step 3 alone for mono).
+        ``relit.json`` files of ``polcam bench real --relit --mono`` (none: step 4 alone for mono).
     commands
         The commands that produced the inputs (recorded in the table).
     """
@@ -138,13 +158,15 @@ def build_table(real: Sequence[Path], validation: Path, validation_mono: Path, *
                 continue   # not measured on the real stacks: not a candidate
             row: dict[str, Any] = {k: round(float(v), 4) for k, v in summ.get(m, {}).items()}
             row["validation_psnr"] = round(means.get(m, float("nan")), 3)
-            row["passes"] = passes(row)
             out[m] = row
+        for row in out.values():
+            row["passes"] = passes(row, out.get(HIGHLIGHT_REFERENCE))
         return out
 
     table = {
         "rule": {"matte_kept_mean": MATTE_KEPT_MEAN, "matte_kept_each": MATTE_KEPT_EACH,
-                 "invented_max": INVENTED_MAX, "spread_fallback": SPREAD_FALLBACK},
+                 "invented_max": INVENTED_MAX, "spread_fallback": SPREAD_FALLBACK,
+                 "highlight_reference": HIGHLIGHT_REFERENCE},
         "commands": list(commands),
         "colour": rows(real, validation),
         "mono": rows(real_mono, validation_mono),

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from polcam.bench.default_rule import pick, pick_all
+from polcam.bench.default_rule import HIGHLIGHT_REFERENCE, pick, pick_all
 from polcam.separation import default_method
 
 TABLE = Path(__file__).with_name("default_rule_table.json")
@@ -27,6 +27,27 @@ def test_the_best_synthetic_mean_among_the_methods_that_do_no_harm():
     assert pick(rows)[0] == "b"
     rows["b"]["matte_kept_min_mean"] = 0.899
     assert pick(rows)[0] == "a"
+
+
+def _sep(row, top, spread):
+    return {**row, "top_removed": top, "spread": spread}
+
+
+def test_a_default_must_separate_as_well_as_the_reference_baseline():
+    """Step 3: keeping every surface is not enough; the highlights must go and the specular layer
+    must have one colour, at least as well as the reference (wen21)."""
+    ref = HIGHLIGHT_REFERENCE
+    rows = {ref: _sep(_row(0.91, 0.89, 0.006, 0.016, 24.5), 0.096, 0.016),
+            "polarized-only": _sep(_row(0.94, 0.92, 0.003, 0.244, 26.1), 0.044, 0.244),  # imin-like
+            "thin": _sep(_row(0.99, 0.98, 0.002, 0.020, 29.0), 0.027, 0.020)}          # removes too little
+    assert pick(rows)[0] == ref
+    rows["better"] = _sep(_row(0.93, 0.90, 0.004, 0.012, 25.0), 0.120, 0.012)
+    assert pick(rows)[0] == "better"
+    rows["better"]["spread"] = 0.017                                                  # wider than the reference
+    assert pick(rows)[0] == ref
+    # without the reference's figures (mono) the step is skipped
+    del rows[ref]
+    assert pick(rows)[0] == "thin"
 
 
 def test_if_none_passes_the_most_kept_among_narrow_spreads():
