@@ -48,6 +48,7 @@ from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.separation._clipping import declipped, fill_clipped_highlights
+from polcam.separation._highlight import peak_excess
 from polcam.separation._illuminant import _SATURATED, _plane_basis, estimate_illuminant
 from polcam.separation._polarization_noise import (
     _COHERENT_KSIG,
@@ -78,6 +79,7 @@ DEFAULTS: dict[str, Any] = {
     "max_ratio": 4.0,            # unpolarized specular residual <= max_ratio x the polarized specular nearby
     "noise": "shrink",           # the amplitude's noise bias: "off", "rice", "shrink" (garrote) or "thresh";
                                  # unless "off", the colour prior's removal is shrunk by the noise too
+    "evidence": True,            # bound the removal by the pixel's rise above its surroundings (_highlight)
     "declip": True,              # rebuild clipped samples from the other angles (S0 identity, shared AoLP)
     "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"
     "device": None,              # None: numpy and OpenCV; "cpu", "cuda", ...: PyTorch on that device (torch extra)
@@ -103,7 +105,7 @@ def _check(opts: dict[str, Any]) -> None:
     mr = opts["max_ratio"]
     if isinstance(mr, bool) or not isinstance(mr, (int, float, np.floating)) or not 0 <= float(mr) < 1e3:
         raise MethodError(f"polarized-residual: max_ratio={mr!r}: expected a number in [0, 1000)")
-    for k in ("declip", "diffuse_polarization"):
+    for k in ("declip", "diffuse_polarization", "evidence"):
         if not isinstance(opts[k], (bool, np.bool_)):
             raise MethodError(f"polarized-residual: {k}={opts[k]!r}: expected True or False")
     if opts["noise"] not in ("off", "rice", "shrink", "thresh"):
@@ -465,8 +467,15 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
                                                      smooth=k_small)
     if keep is not None:
         keep["prior_removed"] = xp.astype(diffuse, xp.float32)
-    diffuse = fill_clipped_highlights(diffuse, measured, ic, spec, gx)
-    info = {"illuminant": [float(x) for x in g], "illuminant_source": source,
+    # 7. highlight evidence: nothing is removed beyond the multiple of G by which the pixel rises
+    #    above its surroundings' floor (_highlight.peak_excess)
+    if opts["evidence"]:
+        excess = peak_excess(ic, gx, window=k_ctx, smooth=5)
+        diffuse = xp.maximum(diffuse, ic - excess[..., None] * gx)
+    if keep is not None:
+        keep["evidence_bounded"] = xp.astype(diffuse, xp.float32)
+    diffuse, clip_stats = fill_clipped_highlights(diffuse, measured, spec, gx)
+    info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor}
     if est is not None:

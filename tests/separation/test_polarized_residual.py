@@ -1,4 +1,10 @@
-"""polarized-residual: each physical claim on a stack with planted truth."""
+"""polarized-residual: each physical claim on a stack with planted truth.
+
+The tests marked ``evidence=False`` check the steps before the highlight-evidence bound: their
+planted highlights (Gaussian bumps 3-4 pixels in sigma on 48-96 pixel scenes) are wider than the
+bound's window (the context, 0.12 of the side: 7-11 pixels there), which would cut them
+(tests/separation/test_polarized_residual_physics.py covers the bound).
+"""
 
 from __future__ import annotations
 
@@ -39,7 +45,7 @@ def test_planted_polarized_specular_is_removed_exactly():
     h, w = d.shape[:2]
     spec = 0.3 * (_bump(h, w, 16, 12, 3) + _bump(h, w, 16, 52, 3) + _bump(h, w, 36, 32, 4))
     st = _stack(d, spec, (1, 1, 1), rho_s=1.0, phi_s=0.4)
-    res = polcam.separate(st, method="polarized-residual")
+    res = polcam.separate(st, method="polarized-residual", evidence=False)
     assert np.max(np.abs(res.diffuse - d)) < 2e-3
     # the imin diffuse is exact here too; a fully polarized specular needs no prior
     assert np.max(np.abs(polcam.separate(st, method="imin").diffuse - d)) < 1e-6
@@ -60,7 +66,7 @@ def test_white_object_beside_a_partly_polarized_highlight_stays_white():
     h, w = d.shape[:2]
     spec = 0.35 * _bump(h, w, 16, 12, 3)            # highlight on the red patch, DoLP 0.5
     st = _stack(d, spec, (1, 1, 1), rho_s=0.5, phi_s=1.0)
-    res = polcam.separate(st, method="polarized-residual")
+    res = polcam.separate(st, method="polarized-residual", evidence=False)
     white = np.zeros((h, w), bool)
     white[28:44, 20:44] = True
     assert np.max(np.abs(res.diffuse[white] - 0.42)) < 1e-3
@@ -84,7 +90,7 @@ def test_tinted_illuminant_is_recovered():
     est = estimate_illuminant(st)
     assert est.source == "polarized"
     np.testing.assert_allclose(est.colour, gamma, atol=1e-3)
-    res = polcam.separate(st, method="polarized-residual")
+    res = polcam.separate(st, method="polarized-residual", evidence=False)
     np.testing.assert_allclose(res.info["illuminant"], gamma, atol=1e-3)
     assert np.max(np.abs(res.diffuse - d * gamma)) < 0.02
 
@@ -106,7 +112,7 @@ def test_polarizer_efficiency_calibration_and_implied_efficiency():
     good = estimate_illuminant(st_b, efficiency=eff)
     assert good.source == "calibration"
     np.testing.assert_allclose(good.colour, 1.0, atol=1e-3)
-    res = polcam.separate(st_b, method="polarized-residual", efficiency=tuple(eff))
+    res = polcam.separate(st_b, method="polarized-residual", evidence=False, efficiency=tuple(eff))
     assert np.max(np.abs(res.diffuse - d)) < 2e-3
     with pytest.raises(MethodError, match="efficiency"):
         estimate_illuminant(st_b, efficiency=(0.5, 0.0, 1.0))
@@ -117,7 +123,7 @@ def test_partially_polarized_diffuse_is_kept():
     h, w = d.shape[:2]
     spec = 0.3 * (_bump(h, w, 16, 12, 3) + _bump(h, w, 16, 52, 3))
     st = _stack(d, spec, (1, 1, 1), rho_s=1.0, phi_s=0.7, rho_d=0.15)
-    res = polcam.separate(st, method="polarized-residual")
+    res = polcam.separate(st, method="polarized-residual", evidence=False)
     imin = polcam.separate(st, method="imin")
     patch = np.zeros((h, w), bool)
     patch[8:24, 4:20] = True                        # the red patch, under a highlight
@@ -186,7 +192,7 @@ def test_clipped_strongly_polarized_highlight():
     part = (st >= 1.0).any(axis=(0, 3)) & ~(st >= 1.0).all(axis=0).any(axis=-1)
     assert part.sum() >= 8
     err = lambda x: float(np.abs(x - d)[part].mean())  # noqa: E731
-    ours = polcam.separate(st, method="polarized-residual").diffuse
+    ours = polcam.separate(st, method="polarized-residual", evidence=False).diffuse
     off = polcam.separate(st, method="polarized-residual", declip=False).diffuse
     imin = polcam.separate(st, method="imin").diffuse
     assert err(ours) < 0.5 * err(off)
@@ -348,9 +354,9 @@ def test_no_diffuse_polarization_beyond_the_physical_bound_near_brewster(monkeyp
     from polcam.synth.scenes import scene
 
     r = render(scene("Brewster"), size=64, seed=0)
-    bounded = score(polcam.separate(r.stack, method="polarized-residual").diffuse, r.diffuse, r.mask)[2]
+    bounded = score(polcam.separate(r.stack, method="polarized-residual", evidence=False).diffuse, r.diffuse, r.mask)[2]
     monkeypatch.setattr(pr, "_MAX_DIFFUSE_DOLP", 1e9)
-    unbounded = score(polcam.separate(r.stack, method="polarized-residual").diffuse, r.diffuse, r.mask)[2]
+    unbounded = score(polcam.separate(r.stack, method="polarized-residual", evidence=False).diffuse, r.diffuse, r.mask)[2]
     assert bounded > unbounded + 0.2
 
 
@@ -367,7 +373,7 @@ def test_weakly_polarized_diffuse_beside_a_highlight_is_kept():
     st = _stack(d, spec, (1, 1, 1), rho_s=0.3, phi_s=0.4)
     st = st + synthesize(np.zeros_like(d), np.where(band, 0.03, 0.0)[..., None] * d,
                          np.full(d.shape, 0.4 + np.pi / 2))
-    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    res = polcam.separate(st, method="polarized-residual", evidence=False, illuminant=(1, 1, 1))
     amplitude = 0.03 * d[band]
     inner = np.zeros((h, w), bool)
     inner[:, 46:54] = True                     # away from the band's edges, where the smoothed axis mixes
@@ -393,7 +399,7 @@ def test_polarization_off_the_body_colour_is_not_kept(channel):
     st = st + synthesize(np.zeros_like(d), pol, np.full(d.shape, 0.3))
     ic = st.mean(axis=0)
     imin = ic - np.hypot(0.5 * (st[0] - st[2]), 0.5 * (st[1] - st[3]))
-    res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1))
+    res = polcam.separate(st, method="polarized-residual", evidence=False, illuminant=(1, 1, 1))
     assert float((res.diffuse - imin)[8:24, 4:20].max()) < 1e-4
 
 
@@ -410,10 +416,10 @@ def test_residual_ratio_on_a_wide_highlight_needs_a_context_beyond_it(rho):
     k_true = (1 - rho) / rho
     hl = spec > 0.1
     err_imin = np.abs(polcam.separate(st, method="imin").diffuse - d)[hl].mean()
-    wide = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1), context=0.3)
+    wide = polcam.separate(st, method="polarized-residual", evidence=False, illuminant=(1, 1, 1), context=0.3)
     assert abs(wide.info["residual_ratio"] - k_true) < 0.05 * k_true
     assert np.abs(wide.diffuse - d)[hl].mean() < 0.03 * err_imin
-    narrow = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1), context=0.05)
+    narrow = polcam.separate(st, method="polarized-residual", evidence=False, illuminant=(1, 1, 1), context=0.05)
     assert narrow.info["residual_ratio"] < 0.8 * k_true
 
 
@@ -425,11 +431,13 @@ def test_stages_show_each_step():
     spec = 0.35 * _bump(h, w, 16, 12, 3)            # highlight on the red patch, DoLP 0.5
     st = _stack(d, spec, (1, 1, 1), rho_s=0.5, phi_s=1.0)
     out = stages(st)
-    assert set(out) == {"imin", "polarized_removed", "ratio_removed", "prior_removed", "diffuse"}
+    assert set(out) == {"imin", "polarized_removed", "ratio_removed", "prior_removed", "evidence_bounded", "diffuse"}
     final, _ = separate_polarized_residual(st)
     np.testing.assert_array_equal(out["diffuse"], final)
     for a, b in [("polarized_removed", "ratio_removed"), ("ratio_removed", "prior_removed")]:
         assert np.all(out[b] <= out[a] + 1e-6), (a, b)
+    # the evidence bound only gives light back, never below the pixel's surroundings' floor
+    assert np.all(out["evidence_bounded"] >= out["prior_removed"] - 1e-6)
     # step 2 removes the polarized half of the highlight exactly; step 5 then most of the other half
     hl = spec > 0.1
     unpol = d + 0.5 * spec[..., None]
