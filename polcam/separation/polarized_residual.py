@@ -77,6 +77,8 @@ DEFAULTS: dict[str, Any] = {
                                  # unless "off", the colour prior's removal is shrunk by the noise too
     "unpolarized": "none",       # the unpolarized specular light: "none" (left in the diffuse) or "measured"
                                  # (steps of _residual: one specular colour, k from coloured highlights, colour prior)
+    "edge_polarization": True,   # give back the polarized light along the local edge normal (_diffuse_polarization)
+    "one_colour": True,          # remove only a multiple of the illuminant's colour G
     "evidence": True,            # bound the removal by the pixel's rise above its surroundings (_highlight)
     "evidence_window": 0.06,     # side of the surroundings' window, as a share of the image's larger side
     "declip": True,              # rebuild clipped samples from the other angles (S0 identity, shared AoLP)
@@ -97,7 +99,7 @@ def _check(opts: dict[str, Any]) -> None:
     mr = opts["max_ratio"]
     if isinstance(mr, bool) or not isinstance(mr, (int, float, np.floating)) or not 0 <= float(mr) < 1e3:
         raise MethodError(f"polarized-residual: max_ratio={mr!r}: expected a number in [0, 1000)")
-    for k in ("declip", "diffuse_polarization", "evidence"):
+    for k in ("declip", "diffuse_polarization", "evidence", "one_colour", "edge_polarization"):
         if not isinstance(opts[k], (bool, np.bool_)):
             raise MethodError(f"polarized-residual: {k}={opts[k]!r}: expected True or False")
     if opts["noise"] not in ("off", "rice", "shrink", "thresh"):
@@ -302,11 +304,16 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
             keep["imin"] = xp.astype(imin, xp.float32)
     # 3. diffuse polarization: the polarized light along the local edge normal (the normal's azimuth
     #    at occluding contours) is the diffuse light's own and is given back
-    if opts["diffuse_polarization"]:
+    if opts["edge_polarization"]:
         share = radial_share(q, u, lum, smooth=_odd(2 * k_small + 1))
         diffuse = xp.minimum(diffuse + share * (ic - imin), ic)
         if keep is not None:
             keep["diffuse_polarization"] = xp.astype(diffuse, xp.float32)
+    # one specular colour: what is removed is the largest multiple of G under every channel's removal
+    # (the polarized light of the body's colour beyond it is the diffuse light's own)
+    if opts["unpolarized"] == "none" and opts["one_colour"]:
+        a = xp.maximum(xp.amin((ic - diffuse) / gx, axis=-1), 0.0)
+        diffuse = ic - a[..., None] * gx
     # 4. highlight evidence: nothing is removed beyond the multiple of G by which the pixel rises
     #    above its surroundings' floor (_highlight.peak_excess)
     if opts["evidence"]:
