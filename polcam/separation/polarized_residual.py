@@ -49,6 +49,7 @@ from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.separation._clipping import declipped, fill_clipped_highlights
 from polcam.separation._diffuse_polarization import radial_share
+from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import peak_excess
 from polcam.separation._illuminant import _SATURATED, estimate_illuminant
 from polcam.separation._polarization_noise import _axis_debias, _reduction, _stokes_noise
@@ -77,9 +78,10 @@ DEFAULTS: dict[str, Any] = {
                                  # unless "off", the colour prior's removal is shrunk by the noise too
     "unpolarized": "none",       # the unpolarized specular light: "none" (left in the diffuse) or "measured"
                                  # (steps of _residual: one specular colour, k from coloured highlights, colour prior)
+    "edge_fit": 1,               # demosaicing's polarization at edges fitted and removed: 0 (off), 1 or 2 (order)
     "edge_polarization": True,   # give back the polarized light along the local edge normal (_diffuse_polarization)
     "one_colour": True,          # remove only a multiple of the illuminant's colour G
-    "evidence": True,            # bound the removal by the pixel's rise above its surroundings (_highlight)
+    "evidence": False,            # bound the removal by the pixel's rise above its surroundings (_highlight)
     "evidence_window": 0.06,     # side of the surroundings' window, as a share of the image's larger side
     "declip": True,              # rebuild clipped samples from the other angles (S0 identity, shared AoLP)
     "residual_model": "shen13",  # coloured pixels' residual: "shen13" (specular-free clustering) or "hue"
@@ -89,7 +91,15 @@ DEFAULTS: dict[str, Any] = {
 
 
 
+#: Share of a clipped region's border light that the layer must remove for the region to be a highlight
+#: (filled): a sweep on the randomized family's validation split (0.02 / 0.03: 29.34 dB, 0.05 / 0.07:
+#: 29.18, the fill of one scene lost; docs/algorithm.md, polarized-residual).
+_HIGHLIGHT_BORDER = 0.03
+
+
 def _check(opts: dict[str, Any]) -> None:
+    if opts["edge_fit"] not in (0, 1, 2) or isinstance(opts["edge_fit"], bool):
+        raise MethodError(f"polarized-residual: edge_fit={opts['edge_fit']!r}: expected 0, 1 or 2")
     if opts["unpolarized"] not in ("none", "measured"):
         raise MethodError(f"polarized-residual: unpolarized={opts['unpolarized']!r}: expected 'none' or 'measured'")
     for k in ("context", "min_saturation", "polarized_threshold", "evidence_window"):
@@ -232,6 +242,8 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
     clipped_any = (s >= _SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
     if opts["declip"]:
         s = declipped(s)
+    if opts["edge_fit"]:
+        s = without_edge_polarization(s, order=int(opts["edge_fit"]))
     ic = s.mean(axis=0)
     q = 0.5 * (s[0] - s[2])
     u = 0.5 * (s[1] - s[3])
@@ -321,6 +333,9 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
         diffuse = xp.maximum(diffuse, ic - excess[..., None] * gx)
     if keep is not None:
         keep["evidence_bounded"] = xp.astype(diffuse, xp.float32)
+    # a clipped region is a highlight when the layer removes specular light around it (_HIGHLIGHT_BORDER)
+    if opts["unpolarized"] == "none":
+        spec = (ic - diffuse).sum(axis=-1) > _HIGHLIGHT_BORDER * xp.maximum(ic.sum(axis=-1), 1e-6)
     diffuse, clip_stats = fill_clipped_highlights(diffuse, measured, spec, gx)
     info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
