@@ -52,16 +52,18 @@ def without_edge_polarization(stack: Any, *, order: int = 1) -> Any:
         regs = [gx, gy]
         if order >= 2:
             regs += [_imageops.sobel(gx, 1, 0), _imageops.sobel(gy, 0, 1), _imageops.sobel(gx, 0, 1)]
-        a = xp.stack([xp.astype(r, xp.float64).reshape(-1) for r in regs], axis=1)
-        ata = xp.to_numpy(a.T @ a)
+        n = len(regs)
+        ata = np.array([[float((regs[i] * regs[j]).sum()) for j in range(n)] for i in range(n)])
         fits = []
         for t in (q[..., c], u[..., c]):
-            atb = xp.to_numpy(a.T @ xp.astype(t, xp.float64).reshape(-1))
+            atb = np.array([float((r * t).sum()) for r in regs])
             try:
-                coef = np.linalg.solve(ata + 1e-12 * np.eye(len(regs)) * max(np.trace(ata), 1e-30), atb)
+                coef = np.linalg.solve(ata + 1e-12 * np.eye(n) * max(np.trace(ata), 1e-30), atb)
             except np.linalg.LinAlgError:
-                coef = np.zeros(len(regs))
-            fit = sum(float(k) * r for k, r in zip(coef, regs))
+                coef = np.zeros(n)
+            fit = regs[0] * float(coef[0])
+            for k in range(1, n):
+                fit = fit + regs[k] * float(coef[k])
             fits.append(xp.astype(fit, xp.float32))
         dq.append(fits[0])
         du.append(fits[1])
