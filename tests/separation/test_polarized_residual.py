@@ -242,7 +242,8 @@ def test_overexposed_white_surface_under_a_tinted_light_stays_diffuse():
 
 
 @pytest.mark.parametrize("opt", [{"context": 0}, {"hue_bins": 2}, {"max_ratio": -1}, {"noise": "median"}, {"declip": "yes"},
-                                 {"illuminant": (1, 0, 1)}, {"polarized_threshold": 2}])
+                                 {"illuminant": (1, 0, 1)}, {"polarized_threshold": 2}, {"edge_fit": 3},
+                                 {"edge_fit": True}, {"unpolarized": "all"}, {"evidence_window": 0}, {"one_colour": 1}])
 def test_bad_options(opt):
     st = np.zeros((4, 8, 8, 3))
     with pytest.raises(MethodError):
