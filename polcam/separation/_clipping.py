@@ -108,7 +108,7 @@ def declipped(stack: Any) -> Any:
     return s
 
 
-def smooth_fill(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def smooth_fill(img: np.ndarray, mask: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Fill ``img`` ((H, W, C) float32) where ``mask`` ((H, W) bool) smoothly from its surroundings.
 
     Push-pull interpolation (Gortler et al., SIGGRAPH 1996, "pull-push"): the known pixels (weight
@@ -117,10 +117,14 @@ def smooth_fill(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
     weight is whole and the next coarser level's estimate, expanded, in proportion to its missing
     weight.  Known pixels keep their values exactly; the fill is a smooth (Gaussian-expanded)
     surface with the surroundings' colour, with no facets or seams (fast marching drew the
-    X-shaped "pyramids" of its marching order in large regions).  Returns (H, W, C) float32.
+    X-shaped "pyramids" of its marching order in large regions).  ``weights`` ((H, W) in [0, 1],
+    0 inside ``mask``), when given, replaces the known pixels' weight 1: the fill then draws on
+    each pixel in proportion.  Returns (H, W, C) float32.
     """
     img = np.asarray(img, np.float32)
     known = (~np.asarray(mask, bool)).astype(np.float32)
+    if weights is not None:
+        known = np.where(mask, 0.0, np.clip(weights, 0.0, 1.0)).astype(np.float32)
     vals = [img * known[..., None]]
     wts = [known]
     while min(wts[-1].shape) > 1 and float(wts[-1].min()) <= 0.0:
@@ -135,34 +139,41 @@ def smooth_fill(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 def _material_colour(px: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-    """The body chromaticity of the border pixels ``px`` ((N, 3) >= 0), and its spread.
+    """The body chromaticity of the border pixels ``px`` ((N, 3) >= 0), its spread, and each pixel's weight.
 
     Near a highlight the border still holds some specular light, which pulls its chromaticity
-    toward the illuminant's ``g``: the more saturated half of the pixels (farthest from ``g``'s
-    chromaticity) is the body colour's.  Returns their intensity-weighted mean chromaticity
-    ((3,), sum 1), the weighted RMS distance of theirs from it (inf for no lit pixel), and which of
-    ``px`` they are ((N,) bool).
+    toward the illuminant's ``g``: the body colour is that of the pixels farthest from ``g``'s
+    chromaticity.  Each lit pixel is weighted by a ramp of that distance from its median
+    (weight 0) to its 0.9 quantile (weight 1), so that no pixel's vote switches under a small change.
+    Returns the intensity- and ramp-weighted mean chromaticity ((3,), sum 1), the weighted RMS
+    distance of theirs from it (inf for fewer than 4 lit pixels), and the weights ((N,) in [0, 1]).
     """
     tot = px.sum(axis=-1)
     lit = tot > 3.0 / 255
+    wts = np.zeros(px.shape[0])
     if int(lit.sum()) < 4:
-        return np.full(3, 1.0 / 3.0), float("inf"), np.zeros(px.shape[0], bool)
+        return np.full(3, 1.0 / 3.0), float("inf"), wts
     c = px[lit] / tot[lit, None]
-    t = tot[lit]
     dist = np.linalg.norm(c - g / g.sum(), axis=-1)
-    keep = dist >= np.median(dist)
-    c, t = c[keep], t[keep]
+    lo, hi = np.quantile(dist, [0.5, 0.9])
+    # (all of them alike when their distances are: one colour, no highlight light in the band)
+    ramp = np.clip((dist - lo) / (hi - lo), 0.0, 1.0) if hi - lo > 1e-6 else np.ones_like(dist)
+    wts[lit] = ramp
+    t = tot[lit] * ramp
+    if float(t.sum()) <= 0:
+        return np.full(3, 1.0 / 3.0), float("inf"), wts
     mean = (c * t[:, None]).sum(axis=0) / t.sum()
-    body = np.zeros(px.shape[0], bool)
-    body[np.flatnonzero(lit)[keep]] = True
-    return mean, float(np.sqrt((((c - mean) ** 2).sum(axis=-1) * t).sum() / t.sum())), body
+    return mean, float(np.sqrt((((c - mean) ** 2).sum(axis=-1) * t).sum() / t.sum())), wts
 
 
-def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any) -> tuple[Any, dict[str, int]]:
+def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
+                            light: Any = None) -> tuple[Any, dict[str, int]]:
     """``polarized-residual``'s last step: clipped highlights filled smoothly with their own material's diffuse.
 
     ``diffuse`` and ``measured`` (the mean over angles as measured) are (H, W, 3), ``spec`` (H, W)
-    bool (coherent polarized specular light); numpy or torch.  Returns the layer, of the same kind,
+    bool or float in [0, 1] (how far each pixel shows specular light), ``light`` None or (H, W)
+    >= 0 (each border pixel's weight in the share, its intensity: dim pixels' votes are noise);
+    numpy or torch.  Returns the layer, of the same kind,
     and counts of the pixels with a channel clipped at all four angles: ``clipped_pixels``,
     ``clipped_filled`` (filled in part or whole) and ``clipped_as_measured`` (left as measured).
 
@@ -197,9 +208,10 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any) -> t
     n_cc, lab = cv2.connectedComponents(sat_h.astype(np.uint8), connectivity=8)
     lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
     ring = (lab_d > 0) & ~sat_h
-    hits = np.bincount(lab_d[ring], weights=spec_h[ring].astype(np.float64), minlength=n_cc)
-    tot = np.bincount(lab_d[ring], minlength=n_cc)
-    weight = np.clip((hits / np.maximum(tot, 1) - _RING_SHARE) / _RING_RAMP + 0.5, 0.0, 1.0)
+    lw = np.ones(sat_h.shape) if light is None else xp.to_numpy(light).astype(np.float64)
+    hits = np.bincount(lab_d[ring], weights=spec_h[ring].astype(np.float64) * lw[ring], minlength=n_cc)
+    tot = np.bincount(lab_d[ring], weights=lw[ring], minlength=n_cc)
+    weight = np.clip((hits / np.maximum(tot, 1e-12) - _RING_SHARE) / _RING_RAMP + 0.5, 0.0, 1.0)
     weight[0] = 0.0
     out = np.where(sat_h[..., None], mea_h, dif_h)           # unfilled clipped pixels: as measured
     stats_filled = 0
@@ -218,9 +230,9 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any) -> t
             continue
         # the intensity under the region: interpolated from the border's body-colour pixels only (the
         # others still hold some of the highlight's specular light)
-        known = np.zeros(band.shape, bool)
+        known = np.zeros(band.shape, np.float32)
         known[band] = body
-        lum = smooth_fill(dif_h[ya:yb, xa:xb].sum(axis=-1, keepdims=True), ~known)[..., 0]
+        lum = smooth_fill(dif_h[ya:yb, xa:xb].sum(axis=-1, keepdims=True), reg, known)[..., 0]
         fill = np.clip(lum[reg][:, None] * colour[None], 0.0, mea_h[ya:yb, xa:xb][reg])
         sub = out[ya:yb, xa:xb]
         sub[reg] = wk * fill + (1.0 - wk) * mea_h[ya:yb, xa:xb][reg]

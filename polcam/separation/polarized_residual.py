@@ -333,10 +333,14 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
         diffuse = xp.maximum(diffuse, ic - excess[..., None] * gx)
     if keep is not None:
         keep["evidence_bounded"] = xp.astype(diffuse, xp.float32)
-    # a clipped region is a highlight when the layer removes specular light around it (_HIGHLIGHT_BORDER)
+    # a clipped region is a highlight when the layer removes specular light around it (_HIGHLIGHT_BORDER): a
+    # ramp over half that share either side of it, so that a pixel's vote does not switch under noise
+    light = None
     if opts["unpolarized"] == "none":
-        spec = (ic - diffuse).sum(axis=-1) > _HIGHLIGHT_BORDER * xp.maximum(ic.sum(axis=-1), 1e-6)
-    diffuse, clip_stats = fill_clipped_highlights(diffuse, measured, spec, gx)
+        light = ic.sum(axis=-1)
+        share = (ic - diffuse).sum(axis=-1) / xp.maximum(light, 1e-6)
+        spec = xp.clip((share - _HIGHLIGHT_BORDER) / _HIGHLIGHT_BORDER + 0.5, 0.0, 1.0)
+    diffuse, clip_stats = fill_clipped_highlights(diffuse, measured, spec, gx, light)
     info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor}
