@@ -24,9 +24,9 @@ Mono stacks: the same, with the figures of the mono camera (the real stacks'
 luminance through an IMX250MZR mosaic, the family's luminance truth); where
 the table holds no real figures for a mono method, step 3 alone.
 
-``python -m polcam.bench.default_rule --real R --validation V --validation-mono M --out FILE``
-assembles the table from the outputs of ``polcam bench real --relit`` (``R`` =
-its ``relit.json``) and ``polcam bench quality --set random --split validation
+``python -m polcam.bench.default_rule --real R [--real R2] [--real-mono RM] --validation V
+--validation-mono M --out FILE`` assembles the table from the outputs of ``polcam bench real
+--relit [--mono]`` (``R``, ``RM`` = their ``relit.json``) and ``polcam bench quality --set random --split validation
 [--mono]`` (``V``, ``M`` = their ``scores.csv``), prints the choice and writes
 ``FILE`` (the recorded table is ``tests/separation/default_rule_table.json``; a
 test checks the registry against it).
@@ -111,27 +111,30 @@ def _validation_means(path: Path) -> dict[str, float]:
     return {m: float(np.mean(v)) for m, v in by.items()}
 
 
-def build_table(real: Path, validation: Path, validation_mono: Path, *, real_mono: Path | None = None,
-                commands: Sequence[str] = ()) -> dict[str, Any]:
+def build_table(real: Sequence[Path], validation: Path, validation_mono: Path, *,
+                real_mono: Sequence[Path] = (), commands: Sequence[str] = ()) -> dict[str, Any]:
     """Assemble the rule's table from the benches' outputs.
 
     Parameters
     ----------
     real
-        ``relit.json`` of ``polcam bench real --relit`` (colour methods).
+        ``relit.json`` files of ``polcam bench real --relit`` (colour methods; a method's
+        figures come from one file).
     validation, validation_mono
         ``scores.csv`` of ``polcam bench quality --set random --split validation`` (and ``--mono``).
     real_mono
-        Optional ``relit.json`` of the mono methods on the real stacks' luminance.
+        ``relit.json`` files of ``polcam bench real --relit --mono`` (none: step 3 alone for mono).
     commands
         The commands that produced the inputs (recorded in the table).
     """
-    def rows(real_path: Path | None, val: Path) -> dict[str, dict[str, Any]]:
+    def rows(real_paths: Sequence[Path], val: Path) -> dict[str, dict[str, Any]]:
         means = _validation_means(val)
-        summ = json.loads(Path(real_path).read_text())["summary"] if real_path is not None else {}
+        summ: dict[str, Any] = {}
+        for path in real_paths:
+            summ.update(json.loads(Path(path).read_text())["summary"])
         out: dict[str, dict[str, Any]] = {}
         for m in dict.fromkeys([*summ, *means]):
-            if real_path is not None and m not in summ:
+            if real_paths and m not in summ:
                 continue   # not measured on the real stacks: not a candidate
             row: dict[str, Any] = {k: round(float(v), 4) for k, v in summ.get(m, {}).items()}
             row["validation_psnr"] = round(means.get(m, float("nan")), 3)
@@ -153,8 +156,10 @@ def build_table(real: Path, validation: Path, validation_mono: Path, *, real_mon
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m polcam.bench.default_rule``."""
     p = argparse.ArgumentParser(prog="python -m polcam.bench.default_rule", description=__doc__.splitlines()[0])
-    p.add_argument("--real", type=Path, required=True, help="relit.json of polcam bench real --relit")
-    p.add_argument("--real-mono", type=Path, help="relit.json of the mono methods on the real luminance")
+    p.add_argument("--real", type=Path, action="append", required=True,
+                   help="relit.json of polcam bench real --relit (repeat for several runs)")
+    p.add_argument("--real-mono", type=Path, action="append", default=[],
+                   help="relit.json of polcam bench real --relit --mono (repeat)")
     p.add_argument("--validation", type=Path, required=True, help="scores.csv of the colour validation split")
     p.add_argument("--validation-mono", type=Path, required=True, help="scores.csv of the mono validation split")
     p.add_argument("--command", action="append", default=[], help="a command that produced the inputs (repeat)")

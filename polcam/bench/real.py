@@ -436,6 +436,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
                         "tinted, tinted+overexposed; polcam.bench.relit) with the no-harm measures: matte "
                         "achromatic kept, brightest 1 %% removed, specular spread, structure invented in "
                         "clipped regions")
+    p.add_argument("--variants", nargs="+", help="with --relit: only these variants (default: all)")
     p.add_argument("--mono", action="store_true",
                    help="with --relit: the mono camera (the stacks' luminance through an IMX250MZR mosaic) "
                         "and the methods that take mono stacks")
@@ -454,10 +455,11 @@ def run_args(args: argparse.Namespace) -> int:
         print(f"error: --data {data}: no real colour stack found (expected real-color-stack/ or "
               "real-color-stacks/<scene>/ with 0/45/90/135 PNGs)", file=sys.stderr)
         return 2
-    if args.relit:
-        return _run_relit(args, data)
-    if args.mono:
-        print("error: --mono needs --relit", file=sys.stderr)
+    if args.relit:   # polcam.commands.bench sends --relit to polcam.bench.relit.run_args
+        print("error: --relit is run by `polcam bench real --relit` (polcam.bench.relit)", file=sys.stderr)
+        return 2
+    if args.mono or args.variants:
+        print("error: --mono and --variants need --relit", file=sys.stderr)
         return 2
     try:
         scores, layers = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
@@ -469,34 +471,6 @@ def run_args(args: argparse.Namespace) -> int:
     print(format_table(scores))
     for f in write_outputs(scores, layers, args.out):
         print(f"wrote {f}")
-    return 0
-
-
-def _run_relit(args: argparse.Namespace, data: Path) -> int:
-    import json
-    import sys
-
-    from polcam.bench import relit
-
-    if args.exposure != 1.0 or tuple(args.light) != (1.0, 1.0, 1.0):
-        print("error: --relit runs its own variants; expected no --exposure or --light", file=sys.stderr)
-        return 2
-    try:
-        scores = relit.run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
-                           scale=0.5 if args.scale is None else args.scale, mono=args.mono)
-    except PolcamError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    table = relit.format_table(scores)
-    print(table)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out / "relit.md", "w") as fh:
-        fh.write(table + "\n")
-    with atomic_write(out / "relit.json", "w") as fh:
-        fh.write(json.dumps({"rows": [vars(s) for s in scores], "summary": relit.summary(scores)}, indent=1,
-                            default=float) + "\n")
-    print(f"wrote {out / 'relit.md'}\nwrote {out / 'relit.json'}")
     return 0
 
 

@@ -29,7 +29,9 @@ under :data:`VARIANTS` and measures, per stack, variant and method:
         invented = sum_c sum_{p in K_c} |D_c(p) - H_c(p)| / sum_c sum_{p in K_c} I_c(p)
 
     with ``K_c`` the pixels whose four channel-``c`` samples are all at 0.99
-    or above, eroded by one pixel, and ``H_c`` the solution of Laplace's
+    or above, eroded by one pixel, keeping the connected parts of at least
+    :data:`MIN_REGION` pixels (a glint of a few pixels has no room for a
+    visible structure, and its few interior pixels all touch the edge), and ``H_c`` the solution of Laplace's
     equation on ``K_c`` equal to ``D_c`` on its edge (natural boundary at the
     image border).  Facets, blobs, rings and pits score; a smooth ramp from
     the border or a region left alone does not.  NaN where nothing clips.
@@ -40,6 +42,7 @@ evaluation, never copy them into the product.
 
 from __future__ import annotations
 
+import argparse
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -48,8 +51,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["VARIANTS", "CLIP_LEVEL", "RelitScore", "matte_mask", "invented_structure", "run", "format_table",
-           "summary"]
+__all__ = ["VARIANTS", "CLIP_LEVEL", "MIN_REGION", "RelitScore", "matte_mask", "invented_structure", "run", "format_table",
+           "summary", "run_args"]
 
 #: The relit variants: name -> (exposure, light RGB).  ``overexposed``: 1.5 times the light, what
 #: was above 2/3 of the white level clips; ``tinted``: the light a raw IMX250MYR frame sees
@@ -62,6 +65,8 @@ VARIANTS: dict[str, tuple[float, tuple[float, float, float]]] = {
 }
 #: A sample at or above this is clipped (the stacks are 8-bit: 253/255 and above).
 CLIP_LEVEL = 0.99
+#: Smallest clipped region (interior pixels, one channel) the invented-structure measure judges.
+MIN_REGION = 25
 #: Local highlights: grey mean over (1 + LOCAL_BRIGHT) times its median in a LOCAL_WINDOW window.
 LOCAL_BRIGHT = 0.15
 LOCAL_WINDOW = 41
@@ -168,8 +173,8 @@ def invented_structure(diffuse: np.ndarray, given: np.ndarray, *, clip_level: fl
     -------
     invented : float
         Mean absolute departure of the diffuse from the harmonic membrane over its own values on
-        the clipped regions' edges, per unit of the input's light there; NaN where no channel of
-        any pixel has all four samples clipped.
+        the clipped regions' edges, per unit of the input's light there; NaN where no clipped
+        region is large enough to judge.
     clipped_share : float
         Share of pixels in any channel's clipped region (before erosion).
     """
@@ -184,6 +189,10 @@ def invented_structure(diffuse: np.ndarray, given: np.ndarray, *, clip_level: fl
         region = (g[..., c] >= clip_level).all(axis=0)
         any_clip |= region
         interior = ndimage.binary_erosion(region, border_value=1)
+        lab, n = ndimage.label(interior)
+        if n:
+            sizes = np.bincount(lab.ravel())
+            interior = (sizes >= MIN_REGION)[lab] & (lab > 0)
         if not interior.any():
             continue
         h = _harmonic(d[..., c], interior)
@@ -326,3 +335,39 @@ def summary(scores: Sequence[RelitScore]) -> dict[str, dict[str, float]]:
             "invented_max": float(max(inv)) if inv else 0.0,
         }
     return out
+
+
+def run_args(args: argparse.Namespace) -> int:
+    """Run ``polcam bench real --relit`` from parsed arguments (the parser is ``polcam.bench.real``'s)."""
+    import json
+    import sys
+
+    from polcam._jsonable import jsonable
+    from polcam.bench.real import _default_data, find_scenes
+    from polcam.errors import PolcamError
+    from polcam.io.atomic import atomic_write
+
+    data = args.data if args.data is not None else _default_data()
+    if data is None or not find_scenes(data):
+        print(f"error: --data {data}: no real colour stack found", file=sys.stderr)
+        return 2
+    if args.exposure != 1.0 or tuple(args.light) != (1.0, 1.0, 1.0):
+        print("error: --relit runs its own variants; expected no --exposure or --light", file=sys.stderr)
+        return 2
+    try:
+        scores = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
+                     scale=0.5 if args.scale is None else args.scale, mono=args.mono, variants=args.variants)
+    except PolcamError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    table = format_table(scores)
+    print(table)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_write(out / "relit.md", "w") as fh:
+        fh.write(table + "\n")
+    with atomic_write(out / "relit.json", "w") as fh:
+        fh.write(json.dumps(jsonable({"rows": [vars(s) for s in scores], "summary": summary(scores)}),
+                            indent=1) + "\n")
+    print(f"wrote {out / 'relit.md'}\nwrote {out / 'relit.json'}")
+    return 0

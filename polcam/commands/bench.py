@@ -42,6 +42,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         return speed.run_args(args)
     if args.bench == "real":
+        if args.relit:
+            from polcam.bench import relit
+
+            return relit.run_args(args)
         from polcam.bench import real
 
         return real.run_args(args)

@@ -16,7 +16,7 @@ of seeds (the ``validation`` split, fixed) and reported on another (the
   rescaled and sometimes desaturated), achromatic (grey to white), pale (a
   faint tint) or saturated;
 * **specular**: none on 15 % of scenes (matte), else Blinn-Phong strength
-  ``ks`` log-uniform in [0.05, 1.5] and exponent log-uniform in [4, 300]
+  ``ks`` log-uniform in [0.1, 2] and exponent log-uniform in [3, 100]
   (rough to glossy); refractive index uniform in [1.3, 1.9];
 * **diffuse polarization** always on: the transmission Fresnel degree at the
   emission angle (:func:`polcam.synth.render.diffuse_dolp`), so rims are
@@ -330,8 +330,8 @@ def draw(seed: int) -> dict[str, Any]:
     k = int(rng.integers(1, 5))
     centers = [tuple(float(x) for x in rng.uniform(-0.45, 0.45, 3)) for _ in range(k)]
     materials = [_material(rng) for _ in range(k)]
-    ks = 0.0 if rng.random() < 0.15 else _loguniform(rng, 0.05, 1.5)
-    shininess = _loguniform(rng, 4.0, 300.0)
+    ks = 0.0 if rng.random() < 0.15 else _loguniform(rng, 0.1, 2.0)
+    shininess = _loguniform(rng, 3.0, 100.0)
     n_r = float(rng.uniform(1.3, 1.9))
     exposure = _loguniform(rng, 0.25, 3.0)
     light = ("white", "tinted", "mixed")[int(rng.choice(3, p=(0.4, 0.4, 0.2)))]

@@ -76,3 +76,19 @@ def test_small_relit_run_and_the_cli(tmp_path, capsys):
     assert len(doc["rows"]) == 4 and doc["summary"]["imin"]["matte_kept_min"] == pytest.approx(summ["matte_kept_min"])
     assert "| jcpd-15 | tinted+overexposed | imin |" in capsys.readouterr().out
     assert main(["bench", "real", "--relit", "--data", str(data), "--exposure", "2", "--out", str(tmp_path)]) == 2
+
+
+def test_invented_structure_leaves_out_regions_too_small_to_judge():
+    img = np.full((40, 40), 0.6)
+    img[5:11, 5:11] = 1.0              # 6 x 6: a 4 x 4 interior, under MIN_REGION
+    given = _grey_stack(img)
+    d = given.mean(axis=0).copy()
+    d[7:9, 7:9] = 0.3                  # a pit inside it
+    assert np.isnan(invented_structure(d, given)[0])
+    img[20:30, 20:30] = 1.0            # 10 x 10: an 8 x 8 interior, judged
+    given = _grey_stack(img)
+    d = given.mean(axis=0).copy()
+    d[24:26, 24:26] = 0.3
+    inv, _ = invented_structure(d, given)
+    # the region's edge is white all round, so its membrane is 1: the pit's depth over the interior's light
+    assert inv == pytest.approx(4 * 0.7 / 64, rel=1e-6)
