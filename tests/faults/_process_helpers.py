@@ -22,9 +22,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[2]
 PRODUCTS = ("diffuse", "specular", "s0", "dolp", "aolp")
-#: Per-frame options that make a 64x64 colour frame take about a second of solver iterations (frames still in progress
+#: Per-frame options that make a 64x64 colour frame take about a second of the tensor solver's iterations (frames in progress
 #: when a signal arrives).
-SLOW = ("--option", "max_iter=120", "--option", "tol=0")
+SLOW = ("--method", "tensor", "--option", "max_iter=120", "--option", "tol=0")
 
 
 def make_frames(folder: Path, n: int, *, size: int = 64, colour: bool = True, seed: int = 0,

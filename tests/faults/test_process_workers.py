@@ -75,7 +75,8 @@ def test_second_ctrl_c_stops_now(tmp_path):
     """Two SIGINTs to the process group: the second cancels the frames in progress at once."""
     frames = make_frames(tmp_path / "raw", 6)
     out = tmp_path / "out"
-    p = start(tmp_path / "raw", out, "--workers", "2", "--option", "max_iter=3000", "--option", "tol=0")  # long frames
+    p = start(tmp_path / "raw", out, "--workers", "2", "--method", "tensor", "--option", "max_iter=3000",
+              "--option", "tol=0")  # long frames
     try:
         busy_worker(p.pid)
         kill_group(p, signal.SIGINT)
