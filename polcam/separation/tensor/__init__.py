@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import functools
 
-from polcam.parallel import start_workers
 from polcam.separation._registry import register
 from polcam.separation.tensor.driver import initial_diffuse, separate_tensor, warm_up
 from polcam.separation.tensor.ialm import ialm, solve_tiles
@@ -63,7 +62,7 @@ from polcam.separation.tensor.options import (
     DEVICE_BATCH,
     EXACT_TOL,
     FAST_TOL,
-    INIT_PROCESS_PIXELS,
+    INIT_PARALLEL_PIXELS,
     MAX_AUTO_WORKERS,
     VARIANTS,
 )
@@ -87,7 +86,6 @@ __all__ = [
     "solve_tiles",
     "tile_spans",
     "tile_windows",
-    "start_workers",
     "blend",
     "tiled",
     "separate_tensor",
@@ -98,7 +96,7 @@ __all__ = [
     "AUTO_TILE",
     "DEVICE_BATCH",
     "MAX_AUTO_WORKERS",
-    "INIT_PROCESS_PIXELS",
+    "INIT_PARALLEL_PIXELS",
 ]
 
 REFERENCE = (

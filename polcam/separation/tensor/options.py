@@ -25,7 +25,7 @@ __all__ = [
     "AUTO_TILE",
     "DEVICE_BATCH",
     "MAX_AUTO_WORKERS",
-    "INIT_PROCESS_PIXELS",
+    "INIT_PARALLEL_PIXELS",
     "VARIANTS",
     "Plan",
     "resolve",
@@ -58,7 +58,7 @@ DEFAULTS: dict[str, Any] = {
                         # (square) or a (height, width) pair asks for tiles of that size
     "overlap": 6,       # least overlap of neighbouring tiles (pixels), blended linearly; 2 left
                         # visible seams on real stacks (docs/algorithm.md, Fast solver, item 7)
-    "workers": None,    # processes/threads for the initial diffuse, the tiles and the slices;
+    "workers": None,    # threads for the initial diffuse, the tiles and the slices;
                         # None: polcam.parallel.default_workers() (the CPU count, at most 8)
     "device": None,     # None: numpy; "cpu", "cuda", ...: the PyTorch backend (torch extra)
     "precision": "float32",  # working precision of the fast solver: "float32" or "float64"
@@ -84,9 +84,9 @@ AUTO_TILE = (96, 32)
 #: Tiles per IALM call of the PyTorch backend on a CPU (on a GPU: as many as fit in a third of
 #: its free memory).
 DEVICE_BATCH = 64
-#: Largest image whose initial diffuse runs in worker processes (the 1224 x 1024 cell-resolution
-#: frame does; a 2448 x 2048 full-resolution one runs in this process to bound memory).
-INIT_PROCESS_PIXELS = 2_500_000
+#: Largest image whose initial diffuse runs in parallel threads (the 1224 x 1024 cell-resolution
+#: frame does; a 2448 x 2048 full-resolution one runs its Yang'10 runs one at a time to bound memory).
+INIT_PARALLEL_PIXELS = 2_500_000
 #: The registered variants: (tau weights used, phase term used).
 VARIANTS: dict[str, tuple[bool, bool]] = {
     "tensor": (True, True),          # eq. 4
@@ -114,7 +114,7 @@ class Plan:
     shared
         Whether the initial diffuse is computed once on the angle images.
     workers
-        Worker processes / threads.
+        Threads.
     tile
         (height, width) of the tiles; the image's shape for one tile.
     overlap

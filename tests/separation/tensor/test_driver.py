@@ -113,7 +113,7 @@ def test_rectangular_tiles_separate():
 
 
 def test_workers_agree_with_a_thread_running():
-    """Worker processes come from the fork server (never fork), so a running thread changes nothing."""
+    """The tiles run in threads of this process: a thread running beside them changes nothing."""
     import threading
 
     stack, _ = _scene(24)
