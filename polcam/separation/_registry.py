@@ -136,10 +136,11 @@ def method_spec(name: str) -> MethodSpec:
     return lookup(_METHODS, name, what="separation method", order=_ORDER)
 
 
-def _as_input(images: Any) -> tuple[np.ndarray, str]:
+def _as_input(images: Any) -> tuple[np.ndarray, str, dict[str, Any]]:
+    """The input as float64 clipped to [0, 1], its form, and what the clipping did (for ``info``)."""
     arr = np.asarray(images)
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise MethodError(f"input of dtype {arr.dtype}: expected floats in [0, 1]")
+        raise MethodError(f"input of dtype {arr.dtype}: expected linear floats")
     if np.issubdtype(arr.dtype, np.integer):
         raise MethodError(
             f"input of integer dtype {arr.dtype}: expected linear floats in [0, 1] "
@@ -149,10 +150,12 @@ def _as_input(images: Any) -> tuple[np.ndarray, str]:
     # one pass each: NaN propagates through min and max, and an infinity is the min or the max
     lo, hi = (float(arr.min()), float(arr.max())) if arr.size else (0.0, 0.0)
     if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise MethodError("input contains NaN or infinite values: expected finite floats in [0, 1]")
-    if lo < -1e-6 or hi > 1 + 1e-6:
-        raise MethodError(f"input values span [{lo:.4g}, {hi:.4g}]: expected [0, 1]")
-    return np.clip(arr, 0.0, 1.0, out=np.empty(arr.shape, dtype=np.float64)), form
+        raise MethodError("input contains NaN or infinite values: expected finite floats")
+    out = np.clip(arr, 0.0, 1.0, out=np.empty(arr.shape, dtype=np.float64))
+    clipped = 0.0
+    if lo < 0.0 or hi > 1.0:
+        clipped = float(np.count_nonzero((arr < 0.0) | (arr > 1.0))) / arr.size
+    return out, form, {"input_range": [lo, hi], "input_clipped": clipped}
 
 
 def takes_illuminant(method: str) -> bool:
@@ -211,8 +214,11 @@ def separate(images: Any, *, method: str | None = None, **options: Any) -> Separ
     ----------
     images
         (4, H, W, 3) polarization stack (angles 0, 45, 90, 135; RGB; linear
-        float in [0, 1]); (4, H, W) mono stack (methods that accept mono);
-        or (H, W, 3) RGB image (single-image methods only).
+        float); (4, H, W) mono stack (methods that accept mono); or (H, W, 3)
+        RGB image (single-image methods only).  Any finite values: they are
+        clipped to [0, 1] here (the one place polcam enforces that range), so
+        what :func:`polcam.demosaic` returns, whose interpolation overshoots
+        [0, 1] near edges, is taken as it is.
     method
         A name from :data:`polcam.METHODS`; None (the default): the best method for
         the input's form, :func:`default_method`.
@@ -223,16 +229,19 @@ def separate(images: Any, *, method: str | None = None, **options: Any) -> Separ
     -------
     Separation
         ``diffuse`` and ``specular`` float32 of one angle image's shape, with
-        ``diffuse + specular == mean over angles`` (or the image) and
-        ``0 <= diffuse <= mean``.
+        ``diffuse + specular == mean over angles`` of the clipped input (or the
+        clipped image) and ``0 <= diffuse <= that mean``.  ``info`` records
+        ``input_range`` ([min, max] of the input as given) and
+        ``input_clipped`` (the share of its values outside [0, 1]).
 
     Raises
     ------
     MethodError
-        Unknown method, or an input the method does not accept.
+        Unknown method; an input the method does not accept (its shape, an
+        integer dtype, NaN or infinite values).
     """
     spec = None if method is None else method_spec(method)
-    arr, form = _as_input(images)
+    arr, form, clipping = _as_input(images)
     if spec is None:
         spec = method_spec(default_method(form))
         method = spec.name
@@ -261,5 +270,5 @@ def separate(images: Any, *, method: str | None = None, **options: Any) -> Separ
         )
     diffuse = np.clip(np.nan_to_num(diffuse, nan=0.0, posinf=0.0, neginf=0.0), 0.0, reference)
     specular = reference - diffuse
-    full_info = {"method": method, "seconds": seconds, **dict(info)}
+    full_info = {"method": method, "seconds": seconds, **clipping, **dict(info)}
     return Separation(diffuse.astype(np.float32), specular.astype(np.float32), full_info)

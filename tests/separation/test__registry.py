@@ -34,10 +34,19 @@ def test_bad_values_are_refused():
     x[0, 0, 0, 0] = np.nan
     with pytest.raises(MethodError, match="NaN"):
         separate(x, method="imin")
-    with pytest.raises(MethodError, match=r"expected \[0, 1\]"):
-        separate(np.full((4, 4, 4, 3), 3.0), method="imin")
     with pytest.raises(MethodError, match="integer"):
         separate(np.zeros((4, 4, 4, 3), np.uint8), method="imin")
+
+
+def test_out_of_range_values_are_clipped_and_recorded():
+    x = np.full((4, 4, 4, 3), 0.5)
+    x[:, 0] = 3.0                       # one row of each angle image above 1
+    x[:, 1] = -0.2                      # one below 0
+    res = separate(x, method="imin")
+    assert res.info["input_range"] == [-0.2, 3.0] and res.info["input_clipped"] == 0.5
+    np.testing.assert_array_equal(res.diffuse + res.specular, np.clip(x, 0, 1).mean(axis=0).astype(np.float32))
+    inside = separate(np.full((4, 4, 4, 3), 0.5), method="imin")
+    assert inside.info["input_clipped"] == 0.0 and inside.info["input_range"] == [0.5, 0.5]
 
 
 @pytest.fixture
