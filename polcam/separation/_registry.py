@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import inspect
 import time
-from collections.abc import Callable, Sequence
+import typing
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,6 +13,7 @@ import numpy as np
 
 from polcam._names import lookup, ordered
 from polcam.errors import MethodError
+from polcam.separation._option_types import describe, matches
 
 __all__ = ["Separation", "MethodSpec", "register", "separate", "methods", "method_spec",
            "default_method", "input_form", "takes_illuminant", "estimated_illuminant"]
@@ -60,6 +62,9 @@ class MethodSpec:
     options
         The option names of a method whose function takes ``**options``
         (checked before a run); None: read from the function's signature.
+    option_types
+        Their types (typing expressions, :mod:`polcam.separation._option_types`)
+        where declared; a signature's annotations otherwise.
     """
 
     name: str
@@ -68,6 +73,7 @@ class MethodSpec:
     mono: bool = False
     reference: str = ""
     options: tuple[str, ...] | None = None
+    option_types: Mapping[str, Any] | None = None
 
 
 _METHODS: dict[str, MethodSpec] = {}
@@ -78,17 +84,20 @@ _ORDER = ("polarized-residual", "tensor", "tensor-tau", "tensor-plain", "imin", 
 
 
 def register(name: str, *, kind: str, mono: bool = False, reference: str = "",
-             options: Sequence[str] | None = None) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+             options: Sequence[str] | Mapping[str, Any] | None = None
+             ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Decorator registering a separation function under ``name``.
 
-    ``options``: the option names, for a function that takes ``**options``.
+    ``options``: for a function that takes ``**options``, the option names, or
+    a mapping of each name to its type (then checked before a run too).
     """
     if kind not in ("single", "stack"):
         raise ValueError(f"method kind {kind!r}: expected 'single' or 'stack'")
+    types = dict(options) if isinstance(options, Mapping) else None
 
     def deco(fn: Callable[..., Any]) -> Callable[..., Any]:
         _METHODS[name] = MethodSpec(name, fn, kind, mono, reference,
-                                    None if options is None else tuple(options))
+                                    None if options is None else tuple(options), types)
         return fn
 
     return deco
@@ -161,7 +170,7 @@ def _as_input(images: Any) -> tuple[np.ndarray, str, dict[str, Any]]:
 def takes_illuminant(method: str) -> bool:
     """Whether ``method`` takes an RGB ``illuminant`` option (so an estimate can be passed back to it)."""
     try:
-        check_options(method, {"illuminant": [1.0, 1.0, 1.0]})
+        check_options(method, {"illuminant": [1.0, 1.0, 1.0]}, types=False)
     except MethodError:
         return False
     return True
@@ -181,13 +190,30 @@ def estimated_illuminant(info: dict[str, Any]) -> list[float] | None:
     return [float(v) for v in est]
 
 
-def check_options(method: str, options: dict[str, Any]) -> None:
-    """Refuse options ``method`` does not take (:class:`MethodError`), before running it."""
-    _check_options(method_spec(method), options)
+def check_options(method: str, options: dict[str, Any], *, types: bool = True) -> None:
+    """Refuse options ``method`` does not take, or (``types``) values not of the option's type.
+
+    Raises
+    ------
+    MethodError
+        Naming the option, and the options the method takes or the type expected.
+    """
+    _check_options(method_spec(method), options, types=types)
 
 
-def _check_options(spec: MethodSpec, options: dict[str, Any]) -> None:
-    """Refuse keyword options the method does not take (its declared ``options``, else its signature)."""
+def _option_types(spec: MethodSpec) -> Mapping[str, Any]:
+    """The declared types of a method's options, else its function's annotations ({} if unknown)."""
+    if spec.option_types is not None:
+        return spec.option_types
+    try:
+        return typing.get_type_hints(spec.fn)
+    except Exception:  # noqa: BLE001 - annotations that do not evaluate: no type checks
+        return {}
+
+
+def _check_options(spec: MethodSpec, options: dict[str, Any], *, types: bool = True) -> None:
+    """Refuse keyword options the method does not take (its declared ``options``, else its signature),
+    and values that are not of an option's type."""
     if spec.options is not None:
         accepted = list(spec.options)
     else:
@@ -205,6 +231,12 @@ def _check_options(spec: MethodSpec, options: dict[str, Any]) -> None:
             f"method {spec.name!r} takes no option {', '.join(map(repr, unknown))}; "
             f"its options: {', '.join(accepted) if accepted else 'none'}"
         )
+    if not types:
+        return
+    hints = _option_types(spec)
+    for key, value in options.items():
+        if key in hints and not matches(value, hints[key]):
+            raise MethodError(f"option {key}={value!r} of method {spec.name!r}: expected {describe(hints[key])}")
 
 
 def separate(images: Any, *, method: str | None = None, **options: Any) -> Separation:

@@ -109,3 +109,29 @@ def test_unknown_options_are_refused_by_name(toy_methods):
         separate(np.zeros((4, 4, 4, 3)), method="imin", max_iter=5)
     with pytest.raises(MethodError, match="its options: gain"):
         separate(np.zeros((4, 4, 3)), method="_toy_single", gian=2.0)
+
+
+def test_option_types_are_checked_before_the_method_runs():
+    calls = []
+
+    def fn(image, *, levels: int = 8, scale: float = 1.0, name: str | None = None):
+        calls.append((levels, scale, name))
+        return image
+
+    register("_toy_typed", kind="single")(fn)
+    register("_toy_declared", kind="stack", options={"max_iter": int})(lambda st, **o: st.mean(axis=0))
+    try:
+        img = np.full((4, 4, 3), 0.5)
+        with pytest.raises(MethodError, match=r"option levels='abc' of method '_toy_typed': expected an integer"):
+            separate(img, method="_toy_typed", levels="abc")
+        with pytest.raises(MethodError, match=r"option scale=None of method '_toy_typed': expected a number"):
+            separate(img, method="_toy_typed", scale=None)
+        with pytest.raises(MethodError, match=r"option max_iter=2.5 of method '_toy_declared'"):
+            separate(np.full((4, 4, 4, 3), 0.5), method="_toy_declared", max_iter=2.5)
+        assert calls == []
+        separate(img, method="_toy_typed", levels=3, scale=2, name=None)     # an int is a valid float
+        assert calls == [(3, 2, None)]
+    finally:
+        del _METHODS["_toy_typed"], _METHODS["_toy_declared"]
+    with pytest.raises(MethodError, match=r"option max_iter='abc' of method 'tensor': expected an integer"):
+        separate(np.full((4, 8, 8, 3), 0.5), method="tensor", max_iter="abc")

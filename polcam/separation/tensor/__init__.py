@@ -64,6 +64,7 @@ from polcam.separation.tensor.options import (
     FAST_TOL,
     INIT_PARALLEL_PIXELS,
     MAX_AUTO_WORKERS,
+    OPTION_TYPES,
     VARIANTS,
 )
 from polcam.separation.tensor.tiling import blend, tile_spans, tile_windows, tiled
@@ -105,6 +106,6 @@ REFERENCE = (
 )
 
 for _variant in VARIANTS:
-    register(_variant, kind="stack", reference=REFERENCE, options=tuple(DEFAULTS))(
+    register(_variant, kind="stack", reference=REFERENCE, options=OPTION_TYPES)(
         functools.partial(separate_tensor, variant=_variant)
     )

@@ -9,16 +9,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Optional, Union
 
 import numpy as np
 
 from polcam.errors import MethodError
 from polcam.parallel import MAX_AUTO_WORKERS, default_workers
+from polcam.separation._option_types import describe, matches
 from polcam.separation._tsvt import SOLVERS
 
 __all__ = [
     "DEFAULTS",
+    "OPTION_TYPES",
     "EXACT_TOL",
     "FAST_TOL",
     "AUTO_UNTILED_PIXELS",
@@ -66,6 +68,16 @@ DEFAULTS: dict[str, Any] = {
                           # False: on each of the 4 n4 representation images (the paper);
                           # None: True for the fast solver, False for the exact one
     "seed": 0,
+}
+
+#: The type of each option (checked by ``polcam.separate`` before any work).
+OPTION_TYPES: dict[str, Any] = {
+    "n4": int, "block": int, "threshold": float, "alpha": float, "beta": float, "tau_floor": float,
+    "gamma": float, "lam": Optional[float], "rho": float, "mu0": Optional[float], "mu_max": float,
+    "tol": Optional[float], "max_iter": int, "init": str,
+    "illuminant": Union[str, tuple[float, float, float]], "solver": str,
+    "tile": Union[int, tuple[int, int], None], "overlap": int, "workers": Optional[int],
+    "device": Optional[str], "precision": str, "shared_init": Optional[bool], "seed": int,
 }
 
 #: The paper's stopping tolerance, kept by the exact solver.
@@ -154,6 +166,10 @@ def resolve(shape: tuple[int, ...], variant: str, options: dict[str, Any]) -> Pl
             f"unknown option(s) {', '.join(sorted(unknown))} for method {variant!r}; "
             f"expected: {', '.join(DEFAULTS)}"
         )
+    for key, value in options.items():
+        if not matches(value, OPTION_TYPES[key]):
+            raise MethodError(f"option {key}={value!r} of method {variant!r}: "
+                              f"expected {describe(OPTION_TYPES[key])}")
     opt = {**DEFAULTS, **options}
     if opt["solver"] not in SOLVERS:
         raise MethodError(f"solver {opt['solver']!r}: expected one of {', '.join(SOLVERS)}")
