@@ -398,3 +398,17 @@ def test_standalone_command_exits_3_for_a_camera_that_is_not_there(tmp_path, cap
     rc = main(["dark", "--device", f"replay:{tmp_path / 'missing'}", "--frames", "2", "-o", str(out)])
     assert rc == 3 and "does not exist" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_dark_of_lit_frames_is_refused_naming_the_frame_and_its_level(folders, tmp_path, capsys):
+    """The flat frames (a lit, uniform field) given as darks: refused, nothing written."""
+    from polcam.cli import main as polcam_main
+
+    root, sensor = folders
+    first = sorted((root / "flat").glob("*.png"))[0]
+    mean = float(np.mean(read_frame(first).mosaic))
+    target = tmp_path / "dark.npz"
+    assert polcam_main(["calibrate", "dark", str(root / "flat"), "-o", str(target)]) == 2
+    err = capsys.readouterr().err
+    assert f"{first}: not a dark frame: mean level {mean:.4g} counts" in err
+    assert not target.exists()
