@@ -96,7 +96,9 @@ class Page:
         while True:
             try:
                 shot = self.screenshot()
-            except RuntimeError:  # the page is still being swapped in by the first navigation
+            # RuntimeError: the page is still being swapped in by the first navigation; a timeout:
+            # the renderer is too busy to answer in time (a loaded machine drawing in software)
+            except (RuntimeError, TimeoutError, _ws_timeout()):
                 if time.monotonic() > end:
                     raise
                 time.sleep(every)
@@ -106,6 +108,13 @@ class Page:
             if time.monotonic() > end:
                 return shot, False
             time.sleep(every)
+
+
+def _ws_timeout() -> type[Exception]:
+    """websocket-client's timeout exception."""
+    import websocket
+
+    return websocket.WebSocketTimeoutException
 
 
 class open_page:  # noqa: N801 - a context manager used like a function
@@ -273,7 +282,7 @@ def viewer_screenshot(url: str, *, accept: Callable[[np.ndarray], bool], timeout
         shot, ok = page.wait_for(accept, timeout=timeout)
         if ok and settle > 0:
             time.sleep(settle)
-            shot = page.screenshot()
+            shot, _ = page.wait_for(lambda _shot: True, timeout=timeout)  # retried while the page is busy
         return shot, ok
 
 

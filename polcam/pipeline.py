@@ -13,7 +13,10 @@ asks: ``polcam process`` (:mod:`polcam.process`), ``polcam stokes``,
   S0 = (I0 + I45 + I90 + I135) / 2; DoLP in [0, 1]; AoLP in [0, pi)).
 - :func:`separate_layers` runs a separation method on the stack clipped to
   [0, 1] (diffuse and specular on the scale of one polarization image).
-- :func:`run_frame` chains them and times each step.
+- :func:`run_frame` chains them and times each step.  The Stokes maps are
+  computed once per frame: a separation method that takes a precomputed
+  sinusoid fit (its ``fit`` option, e.g. ``wen21``) gets the one made in the
+  same pass over the stack as the products.
 - :func:`live_maps` is the live view's cheaper route to the same quantities
   at the polarizer-cell resolution (a few fused OpenCV passes over the four
   angle planes, no float stack): S0/2, DoLP, AoLP and the ``imin`` layers.
@@ -122,20 +125,9 @@ def products(stack: np.ndarray, names: Iterable[str] = tuple(PRODUCTS)) -> dict[
     unknown = [n for n in names if n not in PRODUCTS]
     if unknown:
         raise ValueError(f"unknown products {unknown}: expected names among {', '.join(PRODUCTS)}")
-    s = st.stokes(stack)
-    out: dict[str, np.ndarray] = {}
-    for name in names:
-        if name.startswith("i"):
-            out[name] = stack[("i000", "i045", "i090", "i135").index(name)]
-        elif name in ("s0", "s1", "s2"):
-            out[name] = getattr(s, name)
-        elif name == "dolp":
-            out[name] = st.dolp(s)
-        elif name == "aolp":
-            out[name] = st.aolp(s)
-        else:
-            out[name] = st.fit_residual(stack)
-    return out
+    m = st.maps(stack, [n for n in names if not n.startswith("i")])
+    views = ("i000", "i045", "i090", "i135")
+    return {name: stack[views.index(name)] if name.startswith("i") else m[name] for name in names}
 
 
 def separate_layers(stack: np.ndarray, *, method: str | None = None,
@@ -147,6 +139,31 @@ def separate_layers(stack: np.ndarray, *, method: str | None = None,
     from polcam.separation import separate
 
     return separate(stack, method=method, **dict(options or {}))
+
+
+def _takes_fit(method: str | None, stack_shape: tuple[int, ...]) -> bool:
+    """Whether the separation ``method`` (None: the default for the stack's form) takes a precomputed
+    sinusoid fit (its ``fit`` option), which :func:`run_frame` then computes in the pass that makes
+    the frame's maps instead of the method fitting the stack again."""
+    from polcam.errors import MethodError
+    from polcam.separation._registry import check_options, default_method, input_form
+
+    try:
+        name = method if method is not None else default_method(input_form(stack_shape))
+        check_options(name, {"fit": None})
+    except MethodError:
+        return False
+    return True
+
+
+def _products_and_fit(stack: np.ndarray, names: tuple[str, ...]) -> tuple[dict[str, np.ndarray], st.Sinusoid]:
+    """:func:`products` and the float64 fit (Ic, Isv) of the stack clipped to [0, 1], in one pass:
+    the fit a method would compute from what :func:`separate_layers` hands it."""
+    m, f = st.maps_together(stack, {"names": [n for n in names if not n.startswith("i")]},
+                            {"names": ("ic", "isv"), "dtype": np.float64, "clip": (0.0, 1.0)})
+    views = ("i000", "i045", "i090", "i135")
+    out = {name: stack[views.index(name)] if name.startswith("i") else m[name] for name in names}
+    return out, st.Sinusoid(f["ic"], f["isv"], None)  # type: ignore[arg-type]  # phi: not needed
 
 
 @dataclass
@@ -207,12 +224,20 @@ def run_frame(frame: Frame, *, calibration: Calibration | None = None, layout: s
     stack = to_stack(frame, layout=layout, method=demosaic, resolution=resolution)
     timings["demosaic"] = time.perf_counter() - t
     t = time.perf_counter()
-    out = products(stack, stokes_products)
+    options = dict(method_options or {})
+    if separate and "fit" not in options and _takes_fit(method, stack.shape):
+        names = tuple(stokes_products)
+        unknown = [n for n in names if n not in PRODUCTS]
+        if unknown:
+            raise ValueError(f"unknown products {unknown}: expected names among {', '.join(PRODUCTS)}")
+        out, options["fit"] = _products_and_fit(stack, names)
+    else:
+        out = products(stack, stokes_products)
     timings["stokes"] = time.perf_counter() - t
     res = None
     if separate:
         t = time.perf_counter()
-        res = separate_layers(stack, method=method, options=method_options)
+        res = separate_layers(stack, method=method, options=options)
         timings["separate"] = time.perf_counter() - t
         out["diffuse"], out["specular"] = res.diffuse, res.specular
     return FrameResult(frame=frame, stack=stack, products=out, separation=res, timings=timings)
@@ -228,7 +253,6 @@ _BAYER_TO_RGB = {
     "GRBG": cv2.COLOR_BayerGRBG2RGB,
     "GBRG": cv2.COLOR_BayerGBRG2RGB,
 }
-_TWO_PI = float(2.0 * np.pi)
 
 
 @dataclass
@@ -293,13 +317,12 @@ def _scale(a: np.ndarray, factor: float, offset: float = 0.0, dtype: int = cv2.C
 
 
 def _orientation(s0: np.ndarray, s1: np.ndarray, s2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(|(S1, S2)|, DoLP clipped to [0, 1], AoLP in [0, pi)) of single-channel float32 maps."""
-    mag, ang = cv2.cartToPolar(s1, s2)
-    dolp = cv2.divide(mag, s0)  # OpenCV gives 0 where S0 is 0
-    dolp = cv2.max(cv2.min(dolp, 1.0), 0.0)
-    # the angle of (S1, S2) is in [0, 2 pi]; 2 pi is the orientation of 0
-    ang = cv2.threshold(ang, _TWO_PI * (1.0 - 1e-7), 0.0, cv2.THRESH_TOZERO_INV)[1]
-    return mag, dolp, _scale(ang, 0.5)
+    """(|(S1, S2)|, DoLP clipped to [0, 1], AoLP in [0, pi)) of single-channel float32 maps: the
+    fused kernel of :func:`polcam.polarimetry.maps`, the same as every other route."""
+    m = st.maps_from_stokes(st.Stokes(s0, s1, s2), ("isv", "dolp", "aolp"))
+    mag = m["isv"]
+    mag *= np.float32(2.0)  # |(S1, S2)| = 2 Isv exactly
+    return mag, m["dolp"], m["aolp"]
 
 
 def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
@@ -312,8 +335,8 @@ def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
 
     Mono sensors: exactly ``polcam.polarimetry`` (``stokes``, ``dolp``, ``aolp``,
     ``imin``) of ``polcam.demosaic(..., resolution="cell")`` up to float32
-    rounding (AoLP through OpenCV's ``cartToPolar``, within 1e-4 rad), and the
-    ``imin`` separation of that stack.
+    rounding (DoLP and AoLP by the same fused kernel, :func:`polcam.polarimetry.maps`),
+    and the ``imin`` separation of that stack.
 
     Colour sensors (each angle's cell image is a Bayer mosaic): Ic, Imin and
     the specular part are computed per colour sample, rounded to 8 bits and

@@ -14,11 +14,15 @@ Reproducible and resumable:
   the canonical JSON of everything that determines the outputs (input hash,
   layout, levels, calibration hash, demosaicing, resolution, method, options,
   output format, polcam version).
-* Every file is written atomically (temporary file + rename) and
-  ``meta.json`` last, so it marks a finished frame.  A rerun skips a frame
-  whose ``meta.json`` has the same fingerprint and whose outputs all exist
-  (``force=True`` redoes it); an interrupted run loses at most the frames in
-  flight, and the temporary files a killed run left behind are removed.
+* A frame's products and its ``meta.json`` never disagree: before a frame
+  writes anything its old ``meta.json`` is removed (so an interrupted frame
+  has none), every file is written atomically (temporary file + rename), and
+  ``meta.json`` is written last with the byte size and SHA-256 of each product
+  file.  A rerun skips a frame only when its ``meta.json`` has the same
+  fingerprint *and* every product file it lists has that size and hash
+  (``force=True`` redoes it); anything else is redone.  An interrupted run
+  (kill -9, full disk, power cut) loses at most the frames in flight, and the
+  temporary files a killed run left behind are removed.
 * A bad input (unreadable, truncated, wrong size, no layout, ...) or a failed
   write (read-only folder, full disk) is reported by name with the reason; the
   other frames go on; ``summary.json`` lists the failures and the exit status
@@ -27,17 +31,22 @@ Reproducible and resumable:
 Parallel: ``workers`` local processes (one BLAS thread each, so the machine is
 not oversubscribed and the results do not depend on the thread count), or a
 Dask distributed cluster (``scheduler="tcp://host:8786"``, the ``dask`` extra).
+Local workers are supervised (:mod:`polcam.workpool`): a worker that dies
+(out-of-memory killer, kill -9) costs only the frame it held, reported failed
+with the reason; the workers die with the run.  docs/reliability.md lists
+every fault and what the run does.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
 import re
+import signal
 import time
-from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, wait
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,9 +56,10 @@ import numpy as np
 from polcam import __version__
 from polcam._hashing import sha256_file
 from polcam.errors import PolcamError
-from polcam.parallel import process_pool
 from polcam.pipeline import default_demosaic
 from polcam.sinks.files import FORMATS
+from polcam.outdir import summarize, write_summary
+from polcam.process_checks import _takes, check_run, layout_hint
 
 __all__ = ["ProcessOptions", "FrameJob", "OUTPUTS", "check_run", "layout_hint", "plan", "process_frame", "run",
            "sha256_file"]
@@ -72,6 +82,7 @@ class ProcessOptions:
     format: str = "exr"
     calibration: str | None = None       # path of a calibration file
     max_pixels: int | None = None        # largest frame read (None: polcam.io's default limit)
+    max_memory: int | None = None        # largest estimated memory of one frame, bytes (None/0: no limit)
 
 
 @dataclass(frozen=True)
@@ -93,8 +104,12 @@ def _jsonable(obj: Any) -> Any:
     return jsonable(obj)
 
 
-def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False) -> tuple[list[FrameJob], list[dict[str, str]]]:
+def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False,
+         skipped: list[tuple[Path, str]] | None = None) -> tuple[list[FrameJob], list[dict[str, str]]]:
     """The frames to process under ``inputs`` (files or folders) and their targets.
+
+    ``skipped``: where given, paths left out of a recursive listing (symbolic
+    link loops, dangling links, unreadable folders) are appended as ``(path, reason)``.
 
     Returns
     -------
@@ -111,7 +126,7 @@ def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False) -> t
     for root in inputs:
         root = Path(root)
         if root.is_dir():
-            for f in raw_files_in(root, recursive=recursive):
+            for f in raw_files_in(root, recursive=recursive, skipped=skipped):
                 rel = f.relative_to(root).with_suffix("")
                 name = rel.as_posix() if recursive else f.stem
                 if name in jobs:
@@ -130,16 +145,37 @@ def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False) -> t
     return [jobs[k] for k in sorted(jobs)], problems
 
 
+def _file_record(path: Path) -> dict[str, Any]:
+    return {"bytes": path.stat().st_size, "sha256": sha256_file(path)}
+
+
 def _is_done(job: FrameJob, opts: ProcessOptions, fingerprint: str) -> bool:
-    """Outputs of ``job`` exist and were made with this fingerprint."""
+    """Outputs of ``job`` were made with this fingerprint and are the files its meta.json describes.
+
+    Every product file must exist with the byte size and SHA-256 recorded in
+    meta.json: a frame interrupted while replacing its outputs, or a file
+    changed since, is not up to date.
+    """
     try:
         meta = json.loads((Path(job.target) / "meta.json").read_text())
     except (OSError, ValueError):
         return False
-    ext = FORMATS[opts.format][0]
-    if meta.get("fingerprint") != fingerprint:
+    if not isinstance(meta, dict) or meta.get("fingerprint") != fingerprint:
         return False
-    return all((Path(job.target) / f"{p}{ext}").is_file() for p in OUTPUTS)
+    ext = FORMATS[opts.format][0]
+    files = meta.get("files")
+    if not isinstance(files, dict) or set(files) != {f"{p}{ext}" for p in OUTPUTS}:
+        return False
+    for name, rec in files.items():
+        path = Path(job.target) / name
+        try:
+            if not isinstance(rec, dict) or path.stat().st_size != rec.get("bytes"):
+                return False
+            if sha256_file(path) != rec.get("sha256"):
+                return False
+        except OSError:
+            return False
+    return True
 
 
 def _prepare(job: FrameJob, opts: ProcessOptions) -> tuple[Any, str, dict[str, Any], dict[str, Any], str]:
@@ -151,6 +187,8 @@ def _prepare(job: FrameJob, opts: ProcessOptions) -> tuple[Any, str, dict[str, A
     from polcam.pipeline import require_layout
 
     input_hash = sha256_file(job.input)
+    if opts.max_memory:
+        _check_memory(job, opts)
     frame = require_layout(read_frame(job.input, layout=opts.layout, max_pixels=opts.max_pixels), job.input)
     calibration_hash = sha256_file(opts.calibration) if opts.calibration else None
     from polcam.separation import default_method
@@ -176,94 +214,30 @@ def _prepare(job: FrameJob, opts: ProcessOptions) -> tuple[Any, str, dict[str, A
     return frame, method, method_options, parts, hashlib.sha256(_canonical(parts).encode()).hexdigest()
 
 
-def _takes(method: str, option: str) -> bool:
-    from polcam.errors import MethodError
-    from polcam.separation._registry import check_options
-
-    try:
-        check_options(method, {option: None}, types=False)
-    except MethodError:
-        return False
-    return True
-
-
-def layout_hint(path: str | os.PathLike[str]) -> Any:
-    """The layout a frame's sidecar declares (its ``layout``, else its pixel format's), or ``None``.
-
-    Reads the sidecar only, not the pixels; a sidecar that cannot be read gives ``None`` (the
-    frame's own read reports it).
-    """
-    from polcam.io import read_sidecar
-    from polcam.mosaic import layout_for_format, parse_layout, pixel_format
-
-    try:
-        side = read_sidecar(path) or {}
-        if side.get("layout"):
-            return parse_layout(side["layout"])
-        if side.get("pixel_format"):
-            return layout_for_format(pixel_format(side["pixel_format"], side.get("vendor")))
-    except (PolcamError, OSError):
-        return None
-    return None
-
-
-def check_run(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, str]:
-    """Check the method and options against the frames before any work; the method per input form.
-
-    Without ``opts.method`` each frame runs the registry's default for its form (colour stack
-    or mono stack); the forms are known from ``opts.layout``, else from the frames' sidecars
-    (both forms are assumed where no sidecar says).
-
-    Returns
-    -------
-    dict
-        Input form (``"stack"``, ``"mono-stack"``) -> method of the frames of that form.
-
-    Raises
-    ------
-    MethodError
-        An unknown method; an option the named method does not take, or (no method named)
-        that no method of the run takes; an option value not of the option's type; a
-        colour-only method with a mono ``--layout``.
-    LayoutError
-        An unknown ``opts.layout``.
-    """
-    from polcam.errors import MethodError
+def _check_memory(job: FrameJob, opts: ProcessOptions) -> None:
+    """Refuse a frame whose declared size needs more memory than ``opts.max_memory`` (before reading it)."""
+    from polcam.footprint import frame_memory
+    from polcam.io.readers import declared_size
     from polcam.mosaic import parse_layout
-    from polcam.separation import default_method, method_spec, methods
-    from polcam.separation._registry import check_options
+    from polcam.separation import default_method
 
-    if opts.layout is not None:
-        lay = parse_layout(opts.layout)
-        forms = {"stack" if lay.is_color else "mono-stack"}
-    else:
-        hints = [layout_hint(j.input) for j in jobs]
-        forms = {"stack" if h.is_color else "mono-stack" for h in hints if h is not None}
-        if not forms or any(h is None for h in hints):
-            forms |= {"stack", "mono-stack"}
-    if opts.method is not None:
-        spec = method_spec(opts.method)
-        check_options(opts.method, dict(opts.method_options))
-        if opts.layout is not None and forms == {"mono-stack"} and not spec.mono:
-            mono = ", ".join(m for m in methods() if method_spec(m).mono)
-            raise MethodError(f"--method {opts.method}: it needs colour frames and --layout {opts.layout} is "
-                              f"a mono layout; for mono frames use one of {mono}")
-        return {f: opts.method for f in sorted(forms)}
-    chosen = {f: default_method(f) for f in sorted(forms)}
-    for key in opts.method_options:
-        if not any(_takes(m, key) for m in chosen.values()):
-            reasons = []
-            for m in sorted(set(chosen.values())):
-                try:
-                    check_options(m, {key: None}, types=False)
-                except MethodError as exc:
-                    reasons.append(str(exc))
-            used = ", ".join(f"{m} for {'colour' if f == 'stack' else 'mono'} frames" for f, m in chosen.items())
-            raise MethodError(f"--option {key}: no method of this run ({used}) takes it: {'; '.join(reasons)}")
-        for m in sorted(set(chosen.values())):
-            if _takes(m, key):
-                check_options(m, {key: opts.method_options[key]})
-    return chosen
+    size = declared_size(job.input)
+    if size is None or opts.max_memory is None:
+        return
+    lay = parse_layout(opts.layout) if opts.layout else layout_hint(job.input)
+    colour = lay is None or lay.is_color          # unknown: the larger (colour) estimate
+    method = opts.method or default_method("stack" if colour else "mono-stack")
+    need = frame_memory(*size, colour=colour, resolution=opts.resolution, method=method)
+    if need > opts.max_memory:
+        raise FrameTooLarge(
+            f"the frame is {size[0]}x{size[1]}: it needs about {need / 2**30:.1f} GiB of memory ({method}, "
+            f"{opts.resolution} resolution), more than the limit of {opts.max_memory / 2**30:.1f} GiB; "
+            "raise it with --max-memory SIZE (max_memory=, 0: no limit) if the machine has the memory",
+            path=job.input)
+
+
+class FrameTooLarge(PolcamError):
+    """A frame whose estimated memory exceeds the run's limit (:attr:`ProcessOptions.max_memory`)."""
 
 
 def _remove_stale_temps(folder: Path) -> int:
@@ -286,9 +260,13 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
     -------
     dict
         ``status`` ("done", "skipped" or "failed"), ``input``, ``name``,
-        ``seconds``, and ``error`` (failed) or ``fingerprint`` (done/skipped).
+        ``seconds``, and ``error`` (failed) or ``fingerprint`` (done/skipped);
+        a done frame adds ``peak_rss_mb``, the largest resident memory of the
+        process while it computed the frame (:mod:`polcam._memory`).
     """
     from threadpoolctl import threadpool_limits
+
+    from polcam._memory import peak_rss_mb, reset_peak
 
     t0 = time.perf_counter()
     base = {"input": job.input, "name": job.name}
@@ -299,15 +277,40 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
         if not force and _is_done(job, opts, fingerprint):
             return {**base, "status": "skipped", "fingerprint": fingerprint,
                     "seconds": time.perf_counter() - t0}
+        _unmark_finished(target)
+        reset_peak()  # the frame's own peak memory (polcam._memory)
         with threadpool_limits(limits=1, user_api="blas"):
             _compute(job, opts, frame, method, method_options, parts, fingerprint, t0)
         return {**base, "status": "done", "fingerprint": fingerprint,
-                "seconds": time.perf_counter() - t0}
+                "seconds": time.perf_counter() - t0, "peak_rss_mb": round(peak_rss_mb(), 1)}
     except Exception as exc:  # a bad frame never stops the batch: it is reported by name
-        text = str(exc) if isinstance(exc, PolcamError) and exc.path else f"{job.input}: {exc}"
-        if not isinstance(exc, (PolcamError, OSError)):
-            text = f"{job.input}: {type(exc).__name__}: {exc}"
-        return {**base, "status": "failed", "error": text, "seconds": time.perf_counter() - t0}
+        return {**base, "status": "failed", "error": _one_line(exc, job.input), "seconds": time.perf_counter() - t0}
+
+
+def _one_line(exc: BaseException, input_path: str, limit: int = 500) -> str:
+    """The error of a failed frame as one line naming the input (at most ``limit`` characters)."""
+    text = str(exc) if isinstance(exc, PolcamError) and exc.path else f"{input_path}: {exc}"
+    if isinstance(exc, PolcamError) and exc.path and str(exc.path) != str(input_path):
+        text = f"{input_path}: {exc}"              # e.g. an output file: name the frame too
+    if not isinstance(exc, (PolcamError, OSError)):
+        text = f"{input_path}: {type(exc).__name__}: {exc}"
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _unmark_finished(target: Path) -> None:
+    """Remove ``target/meta.json`` before any product is replaced: a frame cut short has none."""
+    from polcam.errors import FrameWriteError
+    from polcam.io.atomic import _fsync_dir
+
+    meta = target / "meta.json"
+    try:
+        meta.unlink()
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise FrameWriteError(f"cannot replace the outputs: {exc.strerror or exc}", path=meta) from exc
+    _fsync_dir(target)
 
 
 def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, method_options: dict[str, Any],
@@ -328,18 +331,23 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
     timings: dict[str, float] = {"read": read_seconds + result.timings["calibrate"],
                                  **{k: v for k, v in result.timings.items() if k != "calibrate"}}
     t = time.perf_counter()
-    file_meta = {"input": job.input, "method": method, "layout": str(frame.layout),
+    source = os.path.abspath(job.input)  # meta.json names the raw frame from wherever it is read
+    file_meta = {"input": source, "method": method, "layout": str(frame.layout),
                  "fingerprint": fingerprint, "polcam_version": __version__}
+    _exit_if_orphaned()
     names = write_products(job.target, {name: result.products[name] for name in OUTPUTS}, fmt=opts.format,
                            unit=_UNIT, metadata=file_meta)
+    files = {n: _file_record(Path(job.target) / n) for n in names}
     timings["write"] = time.perf_counter() - t
     assert result.separation is not None
     info = {k: v for k, v in result.separation.info.items() if k not in ("residuals",)}
     meta = {
-        "input": job.input,
+        "input": source,
         "input_sha256": parts["input_sha256"],
         "name": job.name,
         "outputs": names,
+        "files": files,
+        "resolution": opts.resolution,
         "layout": str(frame.layout),
         "frame": _jsonable({k: v for k, v in frame.metadata.items() if k != "path"}),
         "bit_depth": frame.bit_depth,
@@ -352,13 +360,23 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
         "options_requested": _jsonable(asdict(opts)),
         "polcam_version": __version__,
         "shape": list(result.stack.shape),
+        "product_shapes": {n: list(np.shape(result.products[n])) for n in OUTPUTS},
         "timings": timings,
         "separation_info": _jsonable(info),
         "fingerprint_parts": parts,
         "fingerprint": fingerprint,
     }
+    _exit_if_orphaned()
     write_meta(job.target, meta)
     return meta
+
+
+def _exit_if_orphaned() -> None:
+    """In a worker whose run is gone (a rerun may own the folder now): end before writing anything."""
+    from polcam.workpool import orphaned
+
+    if orphaned():
+        os._exit(1)
 
 
 _CALIBRATIONS: dict[tuple[str, str], Any] = {}
@@ -389,7 +407,7 @@ class RunRecording:  # RERUN SINK (process --rerun): to become the shared polcam
         from polcam.sinks.rerun import RerunSink
 
         self._index = {n: i for i, n in enumerate(names)}
-        self._sink = RerunSink(path, raw_every=1, view_scale=1.0)
+        self._sink = RerunSink(path, raw_every=1, view_scale=1.0, live=False)
 
     def log_frame(self, folder: Path, ext: str, name: str) -> None:
         """Log the outputs of one finished frame (``ext``: kept for callers; any format is read)."""
@@ -415,7 +433,8 @@ def _init_worker() -> None:
 def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         scheduler: str | None = None, force: bool = False,
         on_result: Callable[[dict[str, Any]], None] | None = None,
-        stop: Callable[[], bool] | None = None) -> list[dict[str, Any]]:
+        stop: Callable[[], bool] | None = None, abort: Callable[[], Any] | None = None,
+        scheduler_timeout: float = 10.0) -> list[dict[str, Any]]:
     """Process ``jobs``; results in completion order.
 
     Parameters
@@ -436,6 +455,27 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
     stop
         Polled between frames; when it returns True no new frame is started
         (frames in flight finish).
+    abort
+        Polled while frames run; when it returns true the frames in flight
+        are cancelled (status ``"cancelled"``: their workers are killed, and
+        they leave no ``meta.json``).  A string it returns is the cancelled
+        frames' reason (``"stopped by SIGTERM"``).  In this process
+        (``workers=1``) a :class:`KeyboardInterrupt` during a frame reports
+        that frame cancelled to ``on_result`` and propagates.
+    scheduler_timeout
+        Seconds to wait for a Dask scheduler given by address.
+
+    Returns
+    -------
+    list of dict
+        One per frame started: ``status`` "done", "skipped", "failed" (with
+        ``error``) or "cancelled" (with ``error``: why).  Frames never started
+        (after ``stop``) have none.
+
+    Raises
+    ------
+    PolcamError
+        The Dask scheduler cannot be reached within ``scheduler_timeout``.
     """
     results: list[dict[str, Any]] = []
 
@@ -445,81 +485,98 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
             on_result(r)
 
     stop = stop or (lambda: False)
+    abort = abort or (lambda: False)
     if scheduler is not None:
-        _run_dask(jobs, opts, scheduler, force, done, stop)
+        _run_dask(jobs, opts, scheduler, force, done, stop, abort, scheduler_timeout)
     elif workers <= 1:
         for job in jobs:
-            if stop():
+            if stop() or abort():
                 break
-            done(process_frame(job, opts, force=force))
+            try:
+                r = process_frame(job, opts, force=force)
+            except KeyboardInterrupt:  # reported, then passed on: the caller decides what it means
+                done(_cancelled(job, _stopped(abort)))
+                raise
+            done(r)
     else:
-        with process_pool(workers, preload=("polcam.process",), initializer=_init_worker) as pool:
-            pending: set[Future[dict[str, Any]]] = set()
-            it = iter(jobs)
-            exhausted = False
-            while True:
-                while not exhausted and len(pending) < 2 * workers and not stop():
-                    job = next(it, None)
-                    if job is None:
-                        exhausted = True
-                        break
-                    pending.add(pool.submit(process_frame, job, opts, force=force))
-                if not pending:
-                    break
-                finished, pending = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    done(fut.result())
-                if stop() and not pending:
-                    break
+        from polcam.workpool import run_jobs
+
+        def lost(job: FrameJob, why: Any) -> None:
+            if abort():
+                done(_cancelled(job, _stopped(abort)))
+            elif why.signal in (signal.SIGTERM, signal.SIGINT):   # the signal reached the worker first
+                done(_cancelled(job, f"cancelled: {why.reason}"))
+            else:
+                done({"input": job.input, "name": job.name, "status": "failed", "seconds": None,
+                      "error": f"{job.input}: {why.reason}"})
+
+        run_jobs(functools.partial(_frame_task, opts=opts, force=force), jobs, workers,
+                 on_result=lambda job, r: done(r), on_lost=lost, stop=stop, abort=abort,
+                 on_cancel=lambda job: done(_cancelled(job, _stopped(abort))),
+                 preload=("polcam.process",), initializer=_init_worker)
     return results
 
 
-def _run_dask(jobs: Sequence[FrameJob], opts: ProcessOptions, scheduler: Any, force: bool,
-              done: Callable[[dict[str, Any]], None], stop: Callable[[], bool]) -> None:
+def _frame_task(job: FrameJob, *, opts: ProcessOptions, force: bool) -> dict[str, Any]:
+    return process_frame(job, opts, force=force)
+
+
+def _stopped(abort: Callable[[], Any]) -> str:
+    """Why frames in progress were cancelled: what ``abort()`` returned, when it is a string."""
+    why = abort()
+    return f"cancelled: {why}" if isinstance(why, str) and why else "cancelled: the run was stopped"
+
+
+def _cancelled(job: FrameJob, why: str) -> dict[str, Any]:
+    return {"input": job.input, "name": job.name, "status": "cancelled", "seconds": None, "error": why}
+
+
+def connect_scheduler(address: str, *, timeout: float = 10.0) -> Any:
+    """A ``distributed.Client`` of the Dask scheduler at ``address``.
+
+    Raises
+    ------
+    PolcamError
+        Dask is not installed, or the scheduler does not answer within ``timeout`` seconds (one
+        line naming the address and the reason).
+    """
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError:
         raise PolcamError("--scheduler needs Dask: pip install 'polcam[dask]'") from None
-    own = not isinstance(scheduler, Client)
-    client = Client(scheduler) if own else scheduler
     try:
-        futures = [client.submit(process_frame, job, opts, force=force, pure=False, key=f"polcam-{job.name}-{i}")
-                   for i, job in enumerate(jobs)]
-        for fut in as_completed(futures):
-            if stop():
-                for f in futures:
+        return Client(address, timeout=timeout)
+    except (OSError, TimeoutError, ValueError) as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise PolcamError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s "
+                          f"({reason[:200]})") from None
+
+
+def _run_dask(jobs: Sequence[FrameJob], opts: ProcessOptions, scheduler: Any, force: bool,
+              done: Callable[[dict[str, Any]], None], stop: Callable[[], bool], abort: Callable[[], Any],
+              timeout: float) -> None:
+    from distributed import Client, as_completed
+
+    own = not isinstance(scheduler, Client)
+    client = connect_scheduler(scheduler, timeout=timeout) if own else scheduler
+    try:
+        futures = {client.submit(process_frame, job, opts, force=force, pure=False,
+                                 key=f"polcam-{job.name}-{i}"): job for i, job in enumerate(jobs)}
+        pending = set(futures)
+        for fut in as_completed(list(futures)):
+            pending.discard(fut)
+            if fut.status == "finished":
+                done(fut.result())
+            elif fut.status != "cancelled":
+                job = futures[fut]
+                exc = fut.exception() or RuntimeError(f"the Dask task ended as {fut.status}")
+                done({"input": job.input, "name": job.name, "status": "failed", "seconds": None,
+                      "error": _one_line(exc, job.input)})
+            if stop() or abort():
+                for f in pending:
                     f.cancel()
+                    done(_cancelled(futures[f], _stopped(abort)))
                 break
-            done(fut.result())
     finally:
         if own:
             client.close()
-
-
-def summarize(results: Iterable[dict[str, Any]], problems: Sequence[dict[str, str]], *,
-              opts: ProcessOptions, seconds: float, interrupted: bool) -> dict[str, Any]:
-    """The run's summary.json content."""
-    results = sorted(results, key=lambda r: r["name"])
-    failed = [{"input": r["input"], "error": r["error"]} for r in results if r["status"] == "failed"]
-    return {
-        "polcam_version": __version__,
-        "options": _jsonable(asdict(opts)),
-        "frames": len(results) + len(problems),
-        "done": sum(r["status"] == "done" for r in results),
-        "skipped": sum(r["status"] == "skipped" for r in results),
-        "failed": failed + list(problems),
-        "interrupted": interrupted,
-        "seconds": seconds,
-        "results": [{k: v for k, v in r.items() if k != "error"} for r in results],
-    }
-
-
-def write_summary(out_dir: Path, summary: dict[str, Any]) -> Path:
-    """Write OUT_DIR/summary.json atomically."""
-    from polcam.io.atomic import atomic_write
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out_dir / "summary.json", "w") as fh:
-        json.dump(summary, fh, indent=2)
-    return out_dir / "summary.json"
-

@@ -150,3 +150,21 @@ def test_view_web_shows_an_rrd_recording_to_another_machine(browser, tmp_path):
         shot, ok = viewer_screenshot(url, accept=lambda s: shows_planted(s, colours), timeout=60, width=1200, height=700)
         _check(shot, ok, colours, tmp_path / "rrd.png")
     assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
+
+
+@pytest.mark.browser
+def test_view_web_shows_a_demo_output_folder(browser, tmp_path):
+    # the first thing a user tries after `polcam demo`: `polcam view demo-output --web`
+    import subprocess
+    import sys
+
+    colours = planted_scene(tmp_path / "raw")
+    r = subprocess.run([sys.executable, "-m", "polcam", "demo", "--input", str(tmp_path / "raw"), "--out",
+                        str(tmp_path / "demo-output"), "--separate", "imin"], capture_output=True, text=True,
+                       env=_env(), timeout=300)
+    assert r.returncode == 0, r.stderr
+    with serve(["view", str(tmp_path / "demo-output"), "--web", "--port", "0"], env=_env()) as served:
+        assert served.url.startswith("http://127.0.0.1:") and served.server_pids
+        shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60, width=1200, height=700)
+        _check(shot, ok, colours, tmp_path / "demo.png")
+    assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)

@@ -468,13 +468,19 @@ def test_sigkill_leaves_no_partial_frame(tmp_path):
         side = read_sidecar(out / name)
         assert side is not None
         np.testing.assert_array_equal(read_frame(out / name).mosaic, mosaics[side["frame_id"] % 4])
-    # temporaries of the interrupted writes are hidden; the next capture there removes them
+    # temporaries of the interrupted writes are hidden, and a kill between the sidecar's rename and
+    # the frame's can leave that sidecar alone; the next capture there removes both
     leftovers = _hidden(out)
     assert all(n.startswith(".frame_") for n in leftovers)
+    stems = {Path(f).stem for f in files}
+    orphans = sorted(p.name for p in out.glob("frame_*.json") if p.stem not in stems)
+    assert len(orphans) <= 4  # at most the frames the 4 writer threads were writing
     with ReplayCamera(folder) as cam:
         summary = run_capture(cam, out=out, separate=None, append=True)
-    assert summary["stale_temporaries_removed"] == len(leftovers)
+    assert summary["stale_temporaries_removed"] == len(leftovers) + len(orphans)
     assert _hidden(out) == []
+    stems = {Path(f).stem for f in _visible_frames(out)}
+    assert {p.stem for p in out.glob("frame_*.json")} == stems  # the orphan went (its number is reused)
 
 
 # ---------------------------------------------------------------------------

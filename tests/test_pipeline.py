@@ -61,11 +61,42 @@ def test_live_route_agrees_with_the_full_route_on_mono():
     raw = mosaic_stack(np.repeat(np.repeat(stack, 2, axis=1), 2, axis=2), layout="imx250mzr")
     counts = (raw * 65535).round().astype(np.uint16)
     maps = live_maps(counts, require_layout(Frame(mosaic=counts, layout="imx250mzr")).layout)
-    full = products(demosaic(counts, layout="imx250mzr", resolution="cell"), ["s0", "dolp"])
+    full = products(demosaic(counts, layout="imx250mzr", resolution="cell"), ["s0", "dolp", "aolp"])
     np.testing.assert_allclose(maps.ic, full["s0"] / 2, atol=1e-4)        # the live view shows S0 / 2
     np.testing.assert_allclose(maps.dolp, full["dolp"], atol=1e-4)
+    # the same atan2 kernel: orientations agree to float32 rounding of the scaled Stokes values
+    d = np.abs(maps.aolp.astype(np.float64) - full["aolp"])
+    assert np.minimum(d, np.pi - d).max() < 1e-5
 
 
 def test_a_frame_without_layout_is_refused_with_the_flag_to_give():
     with pytest.raises(LayoutError, match=r"f\.png: no layout.*--layout"):
         require_layout(Frame(mosaic=np.zeros((8, 8), np.uint8)), "f.png")
+
+
+def test_run_frame_hands_wen21_the_fit_of_its_maps_pass(monkeypatch):
+    """wen21 gets the sinusoid fit made with the products, and separates exactly as on its own."""
+    import polcam
+    import polcam.separation.wen21 as wen21_mod
+    from polcam import pipeline
+    from polcam.frame import Frame
+    from polcam.synth.render import mosaic
+
+    rng = np.random.default_rng(5)
+    base = rng.uniform(0.05, 0.7, (24, 32, 3))
+    t = np.deg2rad([0.0, 45.0, 90.0, 135.0])[:, None, None, None]
+    stack = base[None] * (1 + 0.4 * np.cos(2 * t - 0.6))
+    raw = np.round(np.clip(mosaic(stack, "imx250myr"), 0, 1) * 4095).astype(np.uint16)
+    frame = Frame(mosaic=raw, layout="imx250myr", bit_depth=12)
+    seen = []
+    real = wen21_mod._fit
+    monkeypatch.setattr(wen21_mod, "_fit", lambda arr: seen.append(arr.shape) or real(arr))
+    assert pipeline._takes_fit("wen21", (4, 8, 8, 3)) and not pipeline._takes_fit("imin", (4, 8, 8, 3))
+    res = pipeline.run_frame(frame, resolution="cell", separate=True, method="wen21")
+    assert seen == []  # the method did not fit the stack again
+    alone = polcam.separate(np.clip(res.stack, 0, 1), method="wen21")
+    np.testing.assert_array_equal(res.products["diffuse"], alone.diffuse)
+    assert seen  # ... which it does when called on its own
+    want = pipeline.products(res.stack, ("s0", "dolp", "aolp"))
+    for k, v in want.items():
+        np.testing.assert_array_equal(res.products[k], v)

@@ -153,3 +153,67 @@ def test_real_water_reflection_is_polarized_horizontally(shared_data):
     assert abs(z) > 0.8                   # concentrated orientation
     mean_deg = np.rad2deg(np.angle(z) / 2) % 180
     assert min(mean_deg, 180 - mean_deg) < 25
+
+
+def _reference_maps(i: np.ndarray) -> dict[str, np.ndarray]:
+    """The closed forms written out with whole-array numpy, in the stack's dtype."""
+    h = i.dtype.type(0.5)
+    s0 = (i[0] + i[1] + i[2] + i[3]) * h
+    s1, s2 = i[0] - i[2], i[1] - i[3]
+    lin = np.hypot(s1, s2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.clip(np.where(s0 > 0, lin / np.where(s0 > 0, s0, 1), 0), 0, 1)
+    a = np.mod(h * np.arctan2(s2, s1), np.pi)
+    a = np.where(a >= np.pi, 0, a)
+    return {"s0": s0, "s1": s1, "s2": s2, "dolp": d, "aolp": a, "ic": s0 * h, "isv": lin * h,
+            "imin": s0 * h - lin * h, "imax": s0 * h + lin * h, "residual": (i[0] + i[2]) - (i[1] + i[3])}
+
+
+@pytest.mark.parametrize("shape", [(4, 3), (4, 37, 29, 3), (4, 1031, 1033)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_fused_maps_equal_the_closed_forms(shape, dtype):
+    from polcam import polarimetry
+
+    rng = np.random.default_rng(3)
+    i = rng.uniform(-0.05, 1.0, shape).astype(dtype)  # some S0 <= 0: DoLP 0 there
+    i[:, :1] = 0.0                                   # dark pixels: S0 = 0, angle of (0, 0)
+    got = polarimetry.maps(i, polarimetry.MAPS)
+    want = _reference_maps(i)
+    ulp = 2 * np.finfo(dtype).eps
+    for name, ref in want.items():
+        assert got[name].dtype == dtype and got[name].shape == shape[1:], name
+        if name == "aolp":  # an orientation: 0 and pi are one
+            d = np.abs(got[name] - ref)
+            assert np.minimum(d, np.pi - d).max() <= 4 * ulp, name
+            assert got[name].min() >= 0 and got[name].max() < np.pi
+        else:  # the magnitude is sqrt(x^2 + y^2), within an ulp of hypot
+            np.testing.assert_allclose(got[name], ref, rtol=ulp, atol=ulp, err_msg=name)
+    assert (got["dolp"][want["s0"] <= 0] == 0).all()
+    # one map at a time, and the public functions, give the same arrays
+    for name in ("s0", "dolp", "aolp", "imin"):
+        np.testing.assert_array_equal(polarimetry.maps(i, [name])[name], got[name])
+    np.testing.assert_array_equal(dolp(stokes(i)), got["dolp"])
+    np.testing.assert_array_equal(aolp(Stokes(got["s0"], got["s1"], got["s2"])), got["aolp"])
+    np.testing.assert_array_equal(imax(i), got["imax"])
+
+
+def test_fused_maps_refuse_unknown_names():
+    from polcam import polarimetry
+
+    with pytest.raises(ValueError, match="unknown maps.*'dolq'"):
+        polarimetry.maps(np.zeros((4, 2, 2), np.float32), ["dolq"])
+
+
+def test_maps_together_equal_separate_calls_with_dtype_and_clip():
+    from polcam import polarimetry
+
+    rng = np.random.default_rng(4)
+    i = rng.uniform(-0.2, 1.3, (4, 300, 401, 3)).astype(np.float32)  # some values outside [0, 1]
+    a, b = polarimetry.maps_together(i, {"names": ("s0", "dolp")},
+                                     {"names": ("ic", "isv"), "dtype": np.float64, "clip": (0.0, 1.0)})
+    np.testing.assert_array_equal(a["s0"], polarimetry.maps(i, ["s0"])["s0"])
+    ref = polarimetry.maps(np.clip(i, 0, 1).astype(np.float64), ["ic", "isv"])
+    for k in ("ic", "isv"):
+        assert b[k].dtype == np.float64
+        np.testing.assert_array_equal(b[k], ref[k])
+    assert not np.array_equal(b["ic"], polarimetry.maps(i.astype(np.float64), ["ic"])["ic"])

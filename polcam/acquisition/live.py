@@ -11,6 +11,7 @@ previous run is done.  Results go to a Rerun sink (:mod:`polcam.sinks.rerun`).
 
 from __future__ import annotations
 
+import signal
 import threading
 import time
 from typing import TYPE_CHECKING, Any
@@ -32,6 +33,55 @@ class Counters:
         self.fps = 0.0
         self.dropped = 0
         self.incomplete = 0
+
+
+def _start_workers_deaf_to_ctrl_c(method: str) -> int | None:
+    """Start the fork server of a method that runs worker processes, with SIGINT ignored.
+
+    A terminal's Ctrl-C reaches the whole process group.  The capture turns it
+    into a clean stop; the method's worker processes must not die of it mid-frame
+    with a traceback.  An ignored signal stays ignored across ``exec``, and the
+    fork server hands that on to every worker it forks.  Only the main thread
+    can change a signal's handler: from another thread the workers start as
+    they would anyway.  Returns the fork server's process id when it was started here.
+    """
+    from polcam import parallel
+    from polcam.separation import method_spec
+
+    if "workers" not in (method_spec(method).options or ()) or parallel.start_method() != "forkserver":
+        return None
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        parallel.start_workers()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    from multiprocessing import forkserver
+
+    return getattr(forkserver._forkserver, "_forkserver_pid", None)
+
+
+def _stop_fork_server(pid: int) -> int:
+    """SIGTERM a fork server and its children, its workers (Linux ``/proc``); returns how many.
+
+    The server goes first, so no new worker is forked meanwhile; the next pool starts a new one.
+    """
+    import os
+
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children", encoding="ascii") as fh:
+            children = [int(c) for c in fh.read().split()]
+    except (OSError, ValueError):
+        children = []
+    n = 0
+    for target in (pid, *children):
+        try:
+            os.kill(target, signal.SIGTERM)
+            n += 1
+        except OSError:
+            pass
+    return n
 
 
 class LiveProcessor:
@@ -111,7 +161,11 @@ class LiveProcessor:
         for t in self._threads:
             t.start()
         self._sep_thread: threading.Thread | None = None
+        #: True when a stop did not wait for the separation in progress (:meth:`close`).
+        self.separation_abandoned = False
+        self._fork_server: int | None = None
         if separate not in (None, "imin"):
+            self._fork_server = _start_workers_deaf_to_ctrl_c(separate)
             self._sep_thread = threading.Thread(target=self._run_separation, name="separation", daemon=True)
             self._sep_thread.start()
 
@@ -204,6 +258,8 @@ class LiveProcessor:
                 stack = to_stack(frame, layout=self.layout, method="bilinear", resolution="cell")
                 t0 = time.perf_counter()
                 res = separate_layers(stack, method=self.method, options=self.method_options)
+                if self.separation_abandoned:  # the capture stopped without it
+                    return
                 dt = time.perf_counter() - t0
                 self.separation_seconds.append(dt)
                 self.separations += 1
@@ -214,7 +270,12 @@ class LiveProcessor:
                     self.sink.log_layers(index, ts, diffuse=res.diffuse, specular=res.specular)
                     self.sink.log_stats(index, ts, separation_seconds=dt)
             except Exception as exc:  # noqa: BLE001 - reported, live view goes on
+                if self.separation_abandoned:  # its workers were stopped with the capture
+                    return
                 self.separation_errors.append(f"frame {index}: {exc}")
+            except KeyboardInterrupt:  # a worker interrupted all the same: the capture is stopping
+                self.separations_skipped += 1
+                return
 
     def _hold_from(self, info: dict[str, Any]) -> None:
         """Keep the illuminant a separation estimated, for the separations that follow."""
@@ -225,12 +286,18 @@ class LiveProcessor:
             self.held_illuminant = est
             self.method_options["illuminant"] = est
 
-    def close(self, *, finish: bool = True) -> None:
+    def close(self, *, finish: bool = True, abandon_after: float = 1.0) -> None:
         """Stop the live threads.
 
         With ``finish`` the newest frame still waiting (and its separation)
-        is processed first; without it (a stop on request) it is counted as
-        skipped.  Frames being processed are always completed.
+        is processed first, and a separation in progress is waited for.
+        Without it (a stop on request) the waiting frame is counted as
+        skipped, and a separation still running ``abandon_after`` seconds
+        later is abandoned (:attr:`separation_abandoned`, counted in
+        ``separations_skipped``): a tensor separation of a full frame takes
+        tens of seconds, and a stop must not wait for it.  A fork server this
+        processor started, and its workers, are then sent SIGTERM, so the
+        process can exit (the next pool starts a new server).
         """
         with self._lock:
             if self._pending is not None and not finish:
@@ -246,4 +313,10 @@ class LiveProcessor:
                     self.separations_skipped += 1
                     self._sep_pending = None
                 self._sep_wake.notify_all()
-            self._sep_thread.join()
+            self._sep_thread.join(None if finish else abandon_after)
+            if self._sep_thread.is_alive():
+                self.separation_abandoned = True
+                self.separations_skipped += 1
+                if self._fork_server is not None:
+                    _stop_fork_server(self._fork_server)
+                self._sep_thread.join(5.0)

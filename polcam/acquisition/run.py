@@ -32,6 +32,31 @@ signal) abandons the frames still waiting to be written (counted as
 ``unsaved``).  After SIGKILL or a power cut, complete frames are on disk and
 nothing else except hidden temporary files (``.frame_*``), which the next
 capture into that folder removes.
+
+Faults:
+
+- the output folder is checked before the camera starts
+  (:func:`polcam.acquisition.saving.check_writable`): one that cannot be
+  created or written, or a full disk, is a ``FrameWriteError`` naming the
+  folder and the reason, and nothing is captured;
+- a write that fails during the capture stops it at once (``on_write_error=
+  "stop"``; stop reason ``write failed: FOLDER: REASON``), or, with
+  ``"continue-live"``, stops saving and keeps the live view going; either
+  way every frame not written is counted (``frames_save_failed``,
+  ``frames_unsaved``);
+- a camera that stops answering (:class:`polcam.camera.base.CameraDisconnectedError`)
+  ends the capture: the frames it delivered before are saved, the stop
+  reason is ``camera disconnected: ...``;
+- frames the camera delivered that the loop had not yet read when
+  acquisition stopped are saved (a stop on duration, signal, disconnect),
+  or, when the ``frames`` count was reached or on ``abort``, left unread and
+  counted (:meth:`polcam.camera.base.Camera.unread`).  So for a live camera
+  ``frames_good == frames_received + queue_overflow + frames_left_at_stop``,
+  and ``frames_received == frames_saved + frames_save_failed + frames_unsaved``;
+- the summary goes to ``OUT/summary.json`` (``OUT/summary-N.json`` when an
+  earlier capture's summary is there: ``--append`` never overwrites it), or,
+  when the folder cannot take it, to the temporary folder or the current
+  folder (``summary_file`` says where; ``None`` when nowhere could).
 """
 
 from __future__ import annotations
@@ -48,15 +73,25 @@ import numpy as np
 
 from polcam._hashing import sha256_file
 from polcam.acquisition.live import Counters, LiveProcessor
-from polcam.acquisition.saving import SAVE_FORMATS, FrameSaver, clean_stale, existing_frames
-from polcam.camera.base import Camera, FrameTimeout
+from polcam.acquisition.saving import (
+    SAVE_FORMATS,
+    FrameSaver,
+    check_writable,
+    clean_stale,
+    existing_frames,
+    os_reason,
+)
+from polcam.camera.base import Camera, CameraDisconnectedError, FrameTimeout
 from polcam.errors import LayoutError, MethodError, PolcamError
 from polcam.frame import Frame
 
 if TYPE_CHECKING:
     from polcam.calibration.store import Calibration
 
-__all__ = ["StopRequest", "run_capture"]
+__all__ = ["ON_WRITE_ERROR", "StopRequest", "run_capture", "write_summary"]
+
+#: What a capture does when a frame cannot be written: stop, or go on with the live view only.
+ON_WRITE_ERROR: tuple[str, ...] = ("stop", "continue-live")
 
 def _check_calibration(calibration: Calibration, camera: Camera) -> tuple[str | None, str | None]:
     """Refuse a calibration of another layout than the camera sends; (file, SHA-256) to record.
@@ -134,6 +169,7 @@ def run_capture(
     rerun_bind: str = "127.0.0.1",
     rerun_port: int = 9090,
     hold_illuminant: bool = True,
+    on_write_error: str = "stop",
 ) -> dict[str, Any]:
     """Capture from an open, configured camera until a stop condition; return the summary.
 
@@ -191,6 +227,12 @@ def run_capture(
         a method that estimates it and was given none
         (:class:`polcam.acquisition.live.LiveProcessor`); recorded as
         ``separation_illuminant_held``.  ``False``: estimate on every frame.
+    on_write_error
+        ``"stop"``: a failed frame write stops the capture at once (stop
+        reason ``write failed: FOLDER: REASON``); ``"continue-live"``: saving
+        stops (later frames counted ``frames_unsaved``) and the capture and
+        its live view go on.  Either way ``write_error`` records the first
+        failure and ``progress`` gets a message naming the folder and reason.
 
     Returns
     -------
@@ -198,11 +240,12 @@ def run_capture(
         The summary (also written to ``out/summary.json``): ``frames_good``,
         ``frames_incomplete``, ``frames_dropped``, ``frames_received``,
         ``frames_saved``, ``frames_save_failed``, ``frames_unsaved``,
-        ``frames_processed``, ``frames_skipped``, ``separations``,
+        ``frames_left_at_stop``, ``frames_processed``, ``frames_skipped``, ``separations``,
         ``separations_skipped``, ``separation_illuminant_held``, ``duration_s``, ``fps``, ``stop_reason``,
-        ``files``, the camera's ``stream`` statistics, and ``calibration``
-        / ``calibration_sha256`` (the calibration file and its SHA-256, as
-        ``polcam process`` records them; ``None`` without one).
+        ``files``, ``write_error``, ``summary_file`` (where the summary was
+        written; see above), the camera's ``stream`` statistics, and
+        ``calibration`` / ``calibration_sha256`` (the calibration file and its
+        SHA-256, as ``polcam process`` records them; ``None`` without one).
 
     Raises
     ------
@@ -217,12 +260,16 @@ def run_capture(
     MethodError
         Unknown separation method, or a colour-only one on a mono camera.
     FrameWriteError
-        ``out`` holds frames of an earlier capture (without ``append``).
+        ``out`` holds frames of an earlier capture (without ``append``), or
+        cannot be created or written (read-only, permissions, a full disk):
+        checked before the camera starts, nothing is captured.
     """
     from polcam.errors import FrameWriteError
 
     if save_format not in SAVE_FORMATS:
         raise FrameWriteError(f"save format {save_format!r}: expected one of {', '.join(SAVE_FORMATS)}")
+    if on_write_error not in ON_WRITE_ERROR:
+        raise FrameWriteError(f"on_write_error {on_write_error!r}: expected one of {', '.join(ON_WRITE_ERROR)}")
     stop = stop or threading.Event()
     abort = abort or threading.Event()
     layout = camera.layout
@@ -270,7 +317,7 @@ def run_capture(
     if out is not None:
         out = Path(out)
         created_out = not out.exists()
-        out.mkdir(parents=True, exist_ok=True)
+        check_writable(out)  # before the camera starts: a folder that cannot take frames is refused now
         stale = clean_stale(out)
         existing = existing_frames(out)
         if existing and not append:
@@ -307,14 +354,29 @@ def run_capture(
     error: str | None = None
     arrivals: deque[float] = deque()
     t_start = time.monotonic()
-    last_progress = t_start
+    last_progress = last_stats = t_start
     reads = None
+    loop_done = False
+    save_failed_seen = False
     try:
         camera.start()
-        t_start = last_progress = time.monotonic()
+        t_start = last_progress = last_stats = time.monotonic()
         reads = camera.poll_frames(poll=0.1, idle_timeout=idle_timeout, software_trigger=software_trigger)
         while True:
             now = time.monotonic()
+            if saver is not None and saver.failed_event.is_set() and not save_failed_seen:
+                save_failed_seen = True
+                werr = saver.write_error or {}
+                what = f"writing frames to {out} failed: {werr.get('reason', 'unknown reason')}"
+                if on_write_error == "stop":
+                    reason = f"write failed: {out}: {werr.get('reason', 'unknown reason')}"
+                    error = f"{what} (frame {werr.get('file')}); capture stopped"
+                    if progress is not None:
+                        progress({"message": f"{what}; stopping the capture"})
+                    break
+                error = f"{what} (frame {werr.get('file')}); saving stopped, live view went on"
+                if progress is not None:
+                    progress({"message": f"{what}; frames are no longer saved, the live view goes on"})
             if stop.is_set():
                 reason = getattr(stop, "reason", "stop requested")
                 break
@@ -333,6 +395,12 @@ def run_capture(
                 reason = "timeout"
                 error = str(exc)
                 break
+            except CameraDisconnectedError as exc:
+                reason = f"camera disconnected: {camera.lost or exc}"
+                error = str(exc)
+                if progress is not None:
+                    progress({"message": f"{exc}; stopping the capture"})
+                break
             now = time.monotonic()
             if frame is not None:
                 if calibration is not None and received == 0:
@@ -349,25 +417,40 @@ def run_capture(
                     pass  # aborted: counted as unsaved by the saver
                 if live is not None:
                     live.offer(index, frame)
-            if now - last_progress >= 0.5:
+            if now - last_stats >= 0.5:  # the live view's statistics plots
                 st = camera.stats()
                 with counters.lock:
                     counters.fps = float(len(arrivals))
                     counters.dropped = st.dropped
                     counters.incomplete = st.incomplete
-                if progress is not None and now - last_progress >= 1.0:
-                    progress({"received": received, "fps": counters.fps, "dropped": st.dropped,
-                              "incomplete": st.incomplete,
-                              "saved": len(saver.saved) if saver else 0,
-                              "processed": live.processed if live else 0})
+                last_stats = now
+            if progress is not None and now - last_progress >= 1.0:
+                while arrivals and now - arrivals[0] > 1.0:
+                    arrivals.popleft()
+                st = camera.stats()
+                progress({"received": received, "fps": float(len(arrivals)), "dropped": st.dropped,
+                          "incomplete": st.incomplete,
+                          "saved": len(saver.saved) if saver else 0,
+                          "processed": live.processed if live else 0})
                 last_progress = now
+        loop_done = True
     finally:
         t_end = time.monotonic()
         if reads is not None:
             reads.close()
         camera.stop()
-        if live is not None:
-            live.close(finish=not stop.is_set())
+        if loop_done:  # frames delivered before acquisition stopped, not yet read
+            left = camera.take_queued()
+            if left and refused is None and reason != "frames" and not abort.is_set():
+                for frame in left:
+                    index = first_index + received
+                    received += 1
+                    if saver is not None:
+                        saver.put(index, frame, abort=abort)
+            else:
+                camera.unread(len(left))
+        if live is not None:  # the newest frame finished on a planned end; on a stop or a fault, not waited for
+            live.close(finish=not stop.is_set() and reason in ("frames", "duration", "end of stream"))
         if saver is not None:
             saver.close(abort=abort.is_set())
         if sink is not None:
@@ -396,6 +479,7 @@ def run_capture(
         "frames_saved": len(saver.saved) if saver else 0,
         "frames_save_failed": len(saver.failed) if saver else 0,
         "frames_unsaved": saver.unsaved if saver else 0,
+        "frames_left_at_stop": st.left_at_stop,
         "frames_processed": live.processed if live else 0,
         "frames_skipped": live.skipped if live else 0,
         "separation": separate,
@@ -405,7 +489,8 @@ def run_capture(
         "separations_skipped": live.separations_skipped if live else 0,
         "separation_seconds_mean": (float(np.mean(live.separation_seconds))
                                     if live and live.separation_seconds else None),
-        "separation_errors": live.separation_errors if live else [],
+        "separation_errors": list(live.separation_errors) if live else [],
+        "separation_abandoned": live.separation_abandoned if live else False,
         "duration_s": elapsed,
         "fps": received / elapsed,
         "fps_processed": (live.processed / elapsed) if live else 0.0,
@@ -413,6 +498,11 @@ def run_capture(
         "save_seconds_per_frame": (saver.seconds / len(saver.saved)) if saver and saver.saved else None,
         "by_status": st.by_status,
         "queue_overflow": st.queue_overflow,
+        "on_write_error": on_write_error,
+        "write_error": saver.write_error if saver else None,
+        # seconds from the first failed write to the end of acquisition
+        "write_error_to_stop_s": (max(0.0, t_end - saver.failed_at)
+                                  if saver is not None and saver.failed_at is not None else None),
         "stream": st.stream,
         "format": save_format if saver else None,
         "out": None if out is None else str(out),
@@ -423,11 +513,56 @@ def run_capture(
         "calibration_stages": calibration.applied_stages if calibration is not None else None,
         "save_errors": saver.failed if saver else [],
         "files": sorted(saver.saved) if saver else [],
+        "summary_file": None,
+        "summary_error": None,
     }
     if out is not None:
-        from polcam.io.atomic import atomic_write
-
-        with atomic_write(Path(out) / "summary.json", "w") as fh:
-            json.dump(summary, fh, indent=2, default=str)
-            fh.write("\n")
+        write_summary(summary, out)
     return summary
+
+
+def _summary_target(out: Path) -> Path:
+    """``out/summary.json``, or ``out/summary-N.json`` (N = 2, 3, ...) when earlier captures left theirs."""
+    first = out / "summary.json"
+    if not first.exists():
+        return first
+    n = 2
+    while (out / f"summary-{n}.json").exists():
+        n += 1
+    return out / f"summary-{n}.json"
+
+
+def write_summary(summary: dict[str, Any], out: Path) -> Path | None:
+    """Write a capture's summary where it can go; record where in ``summary_file``.
+
+    Tried in order: the output folder (``summary.json``, or ``summary-N.json``
+    beside an earlier capture's), the temporary folder (``$TMPDIR``), the
+    current folder (``polcam-capture-summary-<time>-<pid>.json``).  The reason
+    the output folder refused it goes to ``summary_error``.
+
+    Returns
+    -------
+    pathlib.Path or None
+        The file written, or ``None`` when no place took it (the caller
+        prints the counts).
+    """
+    import os
+    import tempfile
+
+    from polcam.io.atomic import atomic_write
+
+    stamp = f"polcam-capture-summary-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.json"
+    targets = [_summary_target(Path(out)), Path(tempfile.gettempdir()) / stamp, Path.cwd() / stamp]
+    for target in targets:
+        summary["summary_file"] = str(target)
+        try:
+            with atomic_write(target, "w") as fh:
+                json.dump(summary, fh, indent=2, default=str)
+                fh.write("\n")
+        except (PolcamError, OSError) as exc:
+            if summary.get("summary_error") is None:
+                summary["summary_error"] = f"cannot write {target}: {os_reason(exc)}"
+            continue
+        return target
+    summary["summary_file"] = None
+    return None

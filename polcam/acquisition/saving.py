@@ -2,16 +2,28 @@
 
 Files: ``OUT/frame_NNNNNN.<ext>`` with its JSON sidecar ``frame_NNNNNN.json``
 (layout, pixel format, levels, exposure, gain, timestamps, camera, ROI,
-mirroring: :data:`polcam.frame.SIDECAR_KEYS`), both written atomically
-(temporary file, ``fsync``, rename; the sidecar first, so every frame file on
-disk has its sidecar).  Formats (:data:`SAVE_FORMATS`): ``raw`` (the bytes
-exactly as the camera sent them, in the pixel format's packing), ``tiff``
-(uncompressed), ``npy``, ``png`` (lossless but ~90 ms a 5 MP frame: too slow
-for camera rate).
+mirroring: :data:`polcam.frame.SIDECAR_KEYS`), both written atomically: the
+frame's data and its sidecar's go to hidden temporary files (``fsync``-ed)
+before either name appears, then the sidecar is renamed, then the frame.  So
+a full disk or an unwritable folder leaves neither file; a frame file on disk
+always has its sidecar (a frame without one would be read with the wrong
+layout and levels); a sidecar whose frame could not be renamed is removed,
+and the next capture into the folder removes the orphan sidecar a crash
+between the two renames could leave (:func:`clean_stale`).  Formats
+(:data:`SAVE_FORMATS`): ``raw`` (the bytes exactly as the camera sent them,
+in the pixel format's packing), ``tiff`` (uncompressed), ``npy``, ``png``
+(lossless but ~90 ms a 5 MP frame: too slow for camera rate).
+
+The first failed write stops the saver (:attr:`FrameSaver.write_error`):
+frames handed to it afterwards, and those still queued, are counted as
+``unsaved`` rather than tried one by one against a full disk.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import os
 import queue
 import threading
 import time
@@ -21,7 +33,8 @@ from typing import Any
 from polcam.errors import PolcamError
 from polcam.frame import Frame
 
-__all__ = ["SAVE_FORMATS", "FrameSaver", "clean_stale", "existing_frames", "frame_name", "write_captured_frame"]
+__all__ = ["SAVE_FORMATS", "FrameSaver", "check_writable", "clean_stale", "existing_frames", "frame_name",
+           "os_reason", "write_captured_frame"]
 
 #: ``--format`` choices and their file extensions.
 SAVE_FORMATS: dict[str, str] = {"raw": ".raw", "tiff": ".tif", "npy": ".npy", "png": ".png"}
@@ -58,21 +71,99 @@ def write_captured_frame(path: Path, frame: Frame, *, extra: dict[str, Any] | No
     FrameWriteError
         An unwritable target or a frame that cannot be stored losslessly.
     """
-    from polcam.io import read_sidecar, write_frame
+    from polcam.io import read_sidecar, sidecar_path, write_frame
     from polcam.io.atomic import atomic_write
     from polcam.io.sidecar import write_sidecar
 
     path = Path(path)
     payload = getattr(frame, "payload", None)
-    if path.suffix == ".raw" and payload is not None:
-        write_sidecar(path, {**frame.sidecar(), **(extra or {})})  # first: a frame file never lacks its sidecar
-        with atomic_write(path, "wb") as fh:
-            fh.write(payload)
-        return path
-    write_frame(path, frame)
-    if extra:
-        write_sidecar(path, {**(read_sidecar(path) or {}), **extra})
+    try:
+        if path.suffix == ".raw" and payload is not None:
+            meta = {**frame.sidecar(), **(extra or {})}
+            with atomic_write(path, "wb") as fh:
+                fh.write(payload)
+                fh.flush()
+                os.fsync(fh.fileno())  # the frame's data are on disk before its sidecar is named
+                write_sidecar(path, meta)  # renamed before the frame: a frame file never lacks its sidecar
+            return path
+        write_frame(path, frame)  # the same order: both written, then sidecar and frame renamed
+        if extra:
+            write_sidecar(path, {**(read_sidecar(path) or {}), **extra})
+    except BaseException:
+        if not path.exists():  # no sidecar without its frame
+            with contextlib.suppress(OSError):
+                sidecar_path(path).unlink()
+        raise
     return path
+
+
+def os_reason(exc: BaseException) -> str:
+    """The system's reason of a failed write, e.g. ``No space left on device (ENOSPC)``."""
+    from polcam.errors import PolcamError
+
+    if isinstance(exc, OSError):
+        reason = exc.strerror or str(exc)
+        name = errno.errorcode.get(exc.errno or -1)
+        return f"{reason} ({name})" if name else reason
+    if isinstance(exc, PolcamError):
+        cause = exc.__cause__
+        if isinstance(cause, OSError):
+            return os_reason(cause)
+        return getattr(exc, "reason", None) or str(exc)
+    return str(exc)
+
+
+def check_writable(out: Path, *, need_bytes: int = 1 << 20) -> Path:
+    """Create ``out`` if needed and make sure frames can be written there, before any frame is taken.
+
+    A hidden probe file (``.frame_probe_*``) of 64 KiB is written, ``fsync``-ed
+    and removed, and the file system must have at least ``need_bytes`` free.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out``.
+
+    Raises
+    ------
+    FrameWriteError
+        The folder cannot be created, is not a folder, cannot be written
+        (read-only file system, permissions), or the disk is full; the
+        message names the folder and the system's reason.
+    """
+    from polcam.errors import FrameWriteError
+
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise FrameWriteError(f"cannot create the output folder: {os_reason(exc)}", path=out) from None
+    if not out.is_dir():
+        raise FrameWriteError("the output path is not a folder", path=out)
+    probe = out / f".{_FRAME_PREFIX}probe_{os.getpid()}_{threading.get_ident()}"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        try:
+            block = b"\0" * 65536
+            if os.write(fd, block) != len(block):
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        raise FrameWriteError(f"cannot write frames into the output folder: {os_reason(exc)}", path=out) from None
+    finally:
+        with contextlib.suppress(OSError):
+            probe.unlink()
+    try:
+        st = os.statvfs(out)
+    except (OSError, AttributeError):  # no statvfs (Windows): the probe has to do
+        return out
+    free = st.f_bavail * st.f_frsize
+    if free < need_bytes:
+        raise FrameWriteError(f"cannot write frames into the output folder: only {free} bytes free on its disk, "
+                              f"expected at least {need_bytes}", path=out)
+    return out
 
 
 class FrameSaver:
@@ -99,14 +190,25 @@ class FrameSaver:
         self.failed: list[dict[str, str]] = []
         self.unsaved = 0
         self.seconds = 0.0
+        #: The first failed write, ``{"file", "folder", "reason", "error"}``; the saver writes nothing after it.
+        self.write_error: dict[str, str] | None = None
+        #: Set at the first failed write (the capture loop watches it).
+        self.failed_event = threading.Event()
+        #: ``time.monotonic()`` of the first failed write, or ``None``.
+        self.failed_at: float | None = None
         self._threads = [threading.Thread(target=self._work, name=f"saver-{i}", daemon=True)
                          for i in range(max(1, int(workers)))]
         for t in self._threads:
             t.start()
 
     def put(self, index: int, frame: Frame, *, abort: threading.Event | None = None) -> bool:
-        """Queue a frame for writing, waiting for room; False if ``abort`` was set meanwhile."""
+        """Queue a frame for writing, waiting for room; False (counted unsaved) if ``abort`` was set
+        meanwhile or a write has failed."""
         while True:
+            if self.failed_event.is_set():
+                with self._lock:
+                    self.unsaved += 1
+                return False
             try:
                 self._q.put((index, frame), timeout=0.1)
                 return True
@@ -122,6 +224,10 @@ class FrameSaver:
             if item is None:
                 return
             index, frame = item
+            if self.failed_event.is_set():  # nothing more against a disk that refused a write
+                with self._lock:
+                    self.unsaved += 1
+                continue
             path = self.out / f"{frame_name(index)}{self.ext}"
             t0 = time.perf_counter()
             try:
@@ -129,6 +235,11 @@ class FrameSaver:
             except (PolcamError, OSError) as exc:
                 with self._lock:
                     self.failed.append({"file": path.name, "error": str(exc)})
+                    if self.write_error is None:
+                        self.failed_at = time.monotonic()
+                        self.write_error = {"file": path.name, "folder": str(self.out),
+                                            "reason": os_reason(exc), "error": str(exc)}
+                self.failed_event.set()
                 continue
             with self._lock:
                 self.saved.append(path.name)
@@ -156,9 +267,13 @@ class FrameSaver:
 
 
 def clean_stale(out: Path) -> int:
-    """Remove hidden temporary files a killed capture left (``.frame_*``); returns how many."""
+    """Remove what a killed capture left: hidden temporary files (``.frame_*``) and
+    sidecars without their frame (``frame_NNNNNN.json`` alone); returns how many."""
     n = 0
-    for p in out.glob(f".{_FRAME_PREFIX}*"):
+    frames = {p.stem for p in out.glob(f"{_FRAME_PREFIX}*") if p.suffix != ".json"}
+    stale = list(out.glob(f".{_FRAME_PREFIX}*"))
+    stale += [p for p in out.glob(f"{_FRAME_PREFIX}*.json") if p.stem not in frames]
+    for p in stale:
         if p.is_file():
             try:
                 p.unlink()

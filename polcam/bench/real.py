@@ -426,11 +426,20 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--scenes", nargs="+", help="only these scenes (default: all found)")
     p.add_argument("--crop", type=int, nargs=4, metavar=("Y", "X", "H", "W"),
                    help="crop the true stacks to this window first")
-    p.add_argument("--scale", type=float, default=1.0, help="then resize by this factor in (0, 1] (default 1)")
+    p.add_argument("--scale", type=float, help="then resize by this factor in (0, 1] (default 1; 0.5 with --relit)")
     p.add_argument("--exposure", type=float, default=1.0,
                    help="relight: multiply the true stacks by this gain, then clip at 1 (default 1)")
     p.add_argument("--light", type=float, nargs=3, default=(1.0, 1.0, 1.0), metavar=("R", "G", "B"),
                    help="relight: the light's colour against the recording's white balance (default 1 1 1)")
+    p.add_argument("--relit", action="store_true",
+                   help="the standing table: every stack under every relit variant (recorded, overexposed, "
+                        "tinted, tinted+overexposed; polcam.bench.relit) with the no-harm measures: matte "
+                        "achromatic kept, brightest 1 %% removed, specular spread, structure invented in "
+                        "clipped regions")
+    p.add_argument("--variants", nargs="+", help="with --relit: only these variants (default: all)")
+    p.add_argument("--mono", action="store_true",
+                   help="with --relit: the mono camera (the stacks' luminance through an IMX250MZR mosaic) "
+                        "and the methods that take mono stacks")
     p.add_argument("--out", type=Path, default=Path("bench-output/real"), help="output folder "
                                                                               "(default bench-output/real)")
     p.set_defaults(bench_run=run_args)
@@ -446,8 +455,15 @@ def run_args(args: argparse.Namespace) -> int:
         print(f"error: --data {data}: no real colour stack found (expected real-color-stack/ or "
               "real-color-stacks/<scene>/ with 0/45/90/135 PNGs)", file=sys.stderr)
         return 2
+    if args.relit:   # polcam.commands.bench sends --relit to polcam.bench.relit.run_args
+        print("error: --relit is run by `polcam bench real --relit` (polcam.bench.relit)", file=sys.stderr)
+        return 2
+    if args.mono or args.variants:
+        print("error: --mono and --variants need --relit", file=sys.stderr)
+        return 2
     try:
-        scores, layers = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop, scale=args.scale,
+        scores, layers = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
+                             scale=1.0 if args.scale is None else args.scale,
                              exposure=args.exposure, light=args.light)
     except PolcamError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -16,6 +16,9 @@ Cases:
   resolution (1224 x 1024 per angle) and, with ``--full-resolution``, at full
   resolution; the seconds include bilinear demosaicing.
 
+With ``--maps`` it times the route from a raw frame to S0, DoLP and AoLP
+instead, polcam's beside polanalyser's (:mod:`polcam.bench.maps`).
+
 With ``--method NAME`` (any registered method, e.g. ``polarized-residual``)
 that method alone is timed on the same cases (one row per case, no exact solver);
 ``--device`` runs it on a PyTorch device where the method has that backend
@@ -362,8 +365,8 @@ def format_markdown(rows: Sequence[SpeedRow]) -> str:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Add the options of ``polcam bench speed`` to a parser."""
-    p.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512],
-                   help="sides of the synthetic scenes (default 128 256 512)")
+    p.add_argument("--sizes", type=int, nargs="*", default=[128, 256, 512],
+                   help="sides of the synthetic scenes (default 128 256 512; none: the frame alone)")
     p.add_argument("--scenes", nargs="+", default=["Bunny4"], help="synthetic scenes (default Bunny4)")
     p.add_argument("--exact-max", type=int, default=256,
                    help="largest side the exact solver runs at (default 256)")
@@ -380,6 +383,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=_positive_int, help="threads (default: CPU count)")
     p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
     p.add_argument("--json", type=Path, help="also write the rows to this file")
+    p.add_argument("--maps", action="store_true",
+                   help="instead: raw frame to S0, DoLP and AoLP, polanalyser's route and polcam's "
+                        "(bilinear, default demosaicing) on one 2448 x 2048 frame, mono and colour, "
+                        "as ratios (polcam.bench.maps)")
+    p.add_argument("--repeat", type=int, default=5, help="--maps: best of this many runs (default 5)")
 
 
 def _positive_int(text: str) -> int:
@@ -395,6 +403,8 @@ def _positive_int(text: str) -> int:
 
 def run_args(a: argparse.Namespace) -> int:
     """Run ``polcam bench speed`` with parsed options; print the table."""
+    if getattr(a, "maps", False):
+        return _run_maps(a)
     options: dict[str, Any] = {}
     if a.method != "tensor" and (a.tol is not None or a.workers is not None):
         raise MethodError(f"bench speed: --tol and --workers are the tensor method's options, "
@@ -419,6 +429,22 @@ def run_args(a: argparse.Namespace) -> int:
     if names:
         print(f"device: {', '.join(names)}")
     print(format_markdown(rows))
+    if a.json:
+        from polcam.io.atomic import atomic_write
+
+        with atomic_write(a.json, "w") as fh:
+            json.dump([asdict(r) for r in rows], fh, indent=1)
+        print(f"wrote {a.json}")
+    return 0
+
+
+def _run_maps(a: argparse.Namespace) -> int:
+    from polcam.bench import maps
+
+    print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
+    rows = maps.run(repeat=a.repeat, scene=a.frame_scene)
+    print(f"load average {_load():.2f}")
+    print(maps.format_markdown(rows))
     if a.json:
         from polcam.io.atomic import atomic_write
 

@@ -16,6 +16,13 @@ angle; a live camera is stopped while the polarizer turns, so no frame
 exposed before Enter is used.  With ``keep`` every frame used is written, as
 the camera sent it, with its sidecar (polarizer frames also with
 ``polarizer_deg``), so the calibration can be redone from disk.
+
+Faults, as in ``polcam capture``: the ``--keep`` folder is checked for
+writing before the camera starts (:func:`keep_folder`); a kept frame that
+cannot be written, or a camera that disconnects, ends the stage with a
+:class:`~polcam.calibration.store.CalibrationError` that says so, how many
+frames were taken and where the kept ones are; no calibration is written,
+no sidecar is left without its frame.
 """
 
 from __future__ import annotations
@@ -28,7 +35,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from polcam.calibration.store import CalibrationError
-from polcam.camera.base import FrameTimeout
+from polcam.camera.base import CameraDisconnectedError, FrameTimeout
 from polcam.frame import Frame
 
 if TYPE_CHECKING:
@@ -244,10 +251,11 @@ class FrameGrabber:
     # ------------------------------------------------------------------ frames
     def _fail(self, what: str, got: int, n: int, label: str) -> CalibrationError:
         inc, drop = self._counts()
+        kept = f"; the {len(self.kept)} frames kept so far are in {self.keep}" if self.keep is not None else ""
         return CalibrationError(
             f"camera {self.camera.camera_id} {what} after {got} of the {n} good frames asked for {label} "
             f"({inc} incomplete and {drop} dropped frames so far): expected {n} good frames; "
-            "no calibration written")
+            f"no calibration written{kept}")
 
     def grab(self, n: int, *, label: str | None = None, angle: float | None = None) -> Iterator[Frame]:
         """The next ``n`` good frames (acquisition started if needed, left running).
@@ -290,6 +298,9 @@ class FrameGrabber:
                     raise self._fail("ran out of frames", got, n, label) from None
                 except FrameTimeout:
                     raise self._fail(f"sent no frame for {self.idle_timeout:g} s", got, n, label) from None
+                except CameraDisconnectedError as exc:
+                    reason = self.camera.lost or str(exc)
+                    raise self._fail(f"disconnected ({reason})", got, n, label) from None
                 if frame is None:
                     continue
                 frame = as_recorded(frame)
@@ -312,7 +323,16 @@ class FrameGrabber:
             name = f"pol_{seq:05d}_{float(angle) % 180.0:07.3f}deg.raw"
             extra = {ANGLE_KEY: float(angle)}
         assert self.keep is not None
-        path = write_captured_frame(self.keep / name, frame, extra=extra)
+        from polcam.acquisition.saving import os_reason
+        from polcam.errors import FrameWriteError
+
+        try:
+            path = write_captured_frame(self.keep / name, frame, extra=extra)
+        except (FrameWriteError, OSError) as exc:
+            self.pause()
+            raise CalibrationError(
+                f"cannot keep calibration frame {name}: {os_reason(exc)}; the {len(self.kept)} frames kept so far "
+                f"are in {self.keep}; no calibration written", path=self.keep) from None
         self.kept.append(str(path))
 
     def stage_frames(self, n: int) -> Iterator[Frame]:
@@ -350,7 +370,16 @@ class FrameGrabber:
 
 
 def keep_folder(path: Path) -> Path:
-    """Create ``--keep DIR``; refuse one that already holds raw frames."""
+    """Create ``--keep DIR``; refuse one that already holds raw frames, or that cannot be written.
+
+    Raises
+    ------
+    CalibrationError
+        Not a folder, already holding raw frames, or not writable (read-only,
+        permissions, a full disk: the message names the folder and the reason).
+    """
+    from polcam.acquisition.saving import check_writable
+    from polcam.errors import FrameWriteError
     from polcam.io.listing import raw_files_in
 
     path = Path(path)
@@ -361,5 +390,8 @@ def keep_folder(path: Path) -> Path:
         if old:
             raise CalibrationError(f"--keep folder already holds {len(old)} raw frame(s): expected a new or empty "
                                    "folder for the frames of this calibration", path=path)
-    path.mkdir(parents=True, exist_ok=True)
+    try:
+        check_writable(path)
+    except FrameWriteError as exc:
+        raise CalibrationError(f"--keep: {exc.reason}", path=path) from None
     return path

@@ -8,6 +8,7 @@ device id no other backend's prefix claims opens an :class:`AravisCamera`.
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -95,6 +96,20 @@ class AravisCamera(Camera):
         in flight) or ``"sync"``.
     pop_timeout
         Seconds each wait for a buffer lasts in the acquisition thread.
+    probe_after
+        Seconds without any buffer after which the acquisition thread asks a
+        GigE camera whether it is still there (one GVCP register read, again
+        every such period of silence).  A camera that does not answer
+        (Aravis gives up after 2.5 s) is taken as disconnected, as it is when
+        Aravis' own heartbeat reports the control channel lost (about 6 s):
+        :meth:`poll_frames` then raises :class:`CameraDisconnectedError`
+        after the frames already delivered.  ``None``: the heartbeat only.
+
+    Notes
+    -----
+    A camera that went away is not stopped (nothing answers) and is released
+    on a background thread: Aravis waits for GVCP timeouts (about 5 s) when
+    it lets go of a dead GigE device.
     """
 
     def __init__(
@@ -108,6 +123,7 @@ class AravisCamera(Camera):
         socket_buffer_bytes: int | None = None,
         usb_mode: str = "async",
         pop_timeout: float = 0.1,
+        probe_after: float | None = 1.0,
     ) -> None:
         super().__init__(camera_id, queue_frames=queue_frames)
         if int(n_buffers) < 2:
@@ -120,6 +136,9 @@ class AravisCamera(Camera):
         self.socket_buffer_bytes = socket_buffer_bytes
         self.usb_mode = usb_mode
         self.pop_timeout = float(pop_timeout)
+        self.probe_after = None if probe_after is None else float(probe_after)
+        self._info: dict[str, Any] = {}
+        self._lost_handler: int | None = None
         self._arv: Any = None
         self._cam: Any = None
         self._dev: Any = None
@@ -193,6 +212,10 @@ class AravisCamera(Camera):
                 ) from None
             raise CameraUnavailableError(f"cannot open camera {info.id}: {msg}") from None
         self._arv, self._cam, self._dev = arv, cam, cam.get_device()
+        try:  # emitted from Aravis' heartbeat thread when the camera stops answering
+            self._lost_handler = self._dev.connect("control-lost", self._on_control_lost)
+        except TypeError:  # a device class without the signal
+            self._lost_handler = None
         self._device_info = info
         self.camera_id = info.id
         self._vendor = self._string("DeviceVendorName") or cam.get_vendor_name() or info.vendor
@@ -222,14 +245,27 @@ class AravisCamera(Camera):
                 f"{_gerror_message(exc)}"
             ) from None
 
+    def _on_control_lost(self, *_args: Any) -> None:
+        self._connection_lost("Aravis lost the control channel (no answer to its heartbeat)")
+
     def close(self) -> None:
-        """Stop acquisition and release the camera."""
+        """Stop acquisition and release the camera (a camera that went away: on a background thread)."""
         if self._running:
             self.stop()
+        held = [h for h in (self._stream, self._cam, self._dev) if h is not None]
         self._stream = None
         self._cam = None
         self._dev = None
         self._opened = False
+        if self.lost is not None and held:
+            self._release_later(held)  # the last references: dropped on that thread
+        held = []
+
+    def _release_later(self, objects: list[Any]) -> None:
+        """Drop Aravis objects of a camera that went away on a background thread: their
+        finalizers talk to the camera and wait for GVCP timeouts (about 5 s).  ``objects`` must
+        hold the last references."""
+        threading.Thread(target=objects.clear, name=f"release-{self.camera_id}", daemon=True).start()
 
     # ------------------------------------------------------------- features
     def _available(self, name: str) -> bool:
@@ -297,6 +333,16 @@ class AravisCamera(Camera):
         if cam.is_frame_rate_available():
             meta["frame_rate"] = float(cam.get_frame_rate())
         self._meta = meta
+        # what `info` reports, read now: a camera that went away cannot be asked any more
+        d = self._device_info.as_dict() if self._device_info else {"id": self.camera_id}
+        d["vendor_name"] = self._vendor
+        d["model"] = cam.get_model_name() or d.get("model", "")
+        d["pixel_format"] = meta.get("pixel_format")
+        d["layout"] = None if self._layout is None else self._layout.short_name
+        d["settings"] = {k: v for k, v in meta.items() if k not in ("vendor", "camera_id")}
+        if cam.is_gv_device():
+            d["packet_size"] = int(cam.gv_get_packet_size())
+        self._info = d
 
     @property
     def layout(self) -> Layout | None:
@@ -304,16 +350,10 @@ class AravisCamera(Camera):
 
     @property
     def info(self) -> dict[str, Any]:
-        d = self._device_info.as_dict() if self._device_info else {"id": self.camera_id}
-        if self._cam is not None:
-            d["vendor_name"] = self._vendor
-            d["model"] = self._cam.get_model_name() or d.get("model", "")
-            d["pixel_format"] = self._meta.get("pixel_format")
-            d["layout"] = None if self._layout is None else self._layout.short_name
-            d["settings"] = {k: v for k, v in self._meta.items() if k not in ("vendor", "camera_id")}
-            if self._cam.is_gv_device():
-                d["packet_size"] = int(self._cam.gv_get_packet_size())
-        return d
+        """Vendor, model, serial, protocol, settings, as read when the camera was last configured."""
+        if self._info:
+            return {**self._info, "settings": dict(self._info.get("settings", {}))}
+        return self._device_info.as_dict() if self._device_info else {"id": self.camera_id}
 
     def readable_formats(self) -> list[str]:
         """Pixel formats this camera offers that polcam can read."""
@@ -543,10 +583,16 @@ class AravisCamera(Camera):
         fmt = self._format
         assert fmt is not None
         timeout_us = max(1000, int(self.pop_timeout * 1e6))
-        while not self._stop_event.is_set():
+        probe = self.probe_after if self._cam.is_gv_device() else None
+        heard = time.monotonic()
+        while not self._stop_event.is_set() and self.lost is None:
             buf = stream.timeout_pop_buffer(timeout_us)
             if buf is None:
+                if probe is not None and time.monotonic() - heard > probe:
+                    self._probe()
+                    heard = time.monotonic()
                 continue
+            heard = time.monotonic()
             try:
                 status = buf.get_status()
                 fid = int(buf.get_frame_id())
@@ -576,6 +622,15 @@ class AravisCamera(Camera):
                 self._count("size-mismatch", incomplete=True)
                 continue
             self._deliver(frame)
+
+    def _probe(self) -> None:
+        """Ask a silent GigE camera whether it is there (its control channel privilege register)."""
+        from gi.repository import GLib
+
+        try:
+            self._dev.read_register(0x0A00)
+        except GLib.Error as exc:
+            self._connection_lost(f"no answer to a register read ({_gerror_message(exc)})")
 
     def _make_frame(self, data: bytes, w: int, h: int, code: int, fid: int, ts: int, sys_ts: int,
                     x: int, y: int, fmt: PixelFormat) -> CapturedFrame | None:
@@ -609,13 +664,16 @@ class AravisCamera(Camera):
         if self._thread is not None:
             self._thread.join(timeout=10.0)
             self._thread = None
-        if self._cam is not None:
+        if self._cam is not None and self.lost is None:  # a camera that went away cannot be told
             try:
                 self._cam.stop_acquisition()
-            except GLib.Error:
-                pass  # the camera may be gone (unplugged); the stream is dropped anyway
+            except GLib.Error as exc:  # it went away just now
+                self._connection_lost(f"no answer to AcquisitionStop ({_gerror_message(exc)})")
         self._final_stream_stats = self._backend_stats()
+        held = [self._stream] if self._stream is not None else []
         self._stream = None
+        if self.lost is not None and held:
+            self._release_later(held)  # its finalizer writes to the camera: GVCP timeouts
         self._finished.set()
 
     def _backend_stats(self) -> dict[str, Any]:

@@ -44,6 +44,7 @@ from polcam.mosaic import Layout
 __all__ = [
     "Camera",
     "CameraBusyError",
+    "CameraDisconnectedError",
     "CameraNotFoundError",
     "CameraSettingError",
     "CapturedFrame",
@@ -63,6 +64,14 @@ class CameraNotFoundError(CameraUnavailableError):
 
 class CameraBusyError(CameraUnavailableError):
     """The camera exists but another program controls it."""
+
+
+class CameraDisconnectedError(CameraUnavailableError):
+    """A started camera stopped answering (cable out, power lost, emulator killed).
+
+    Raised by :meth:`Camera.poll_frames` once the frames the camera delivered
+    before it went away have all been read.
+    """
 
 
 class CameraSettingError(PolcamError):
@@ -107,6 +116,10 @@ class StreamStats:
     queue_overflow
         The part of ``dropped`` lost to a full frame queue (the consumer was
         too slow).
+    left_at_stop
+        The part of ``dropped`` a live camera delivered that the consumer left
+        unread when it stopped (:meth:`Camera.unread`: ``--frames N`` reached,
+        an abort).
     by_status
         Buffers per status name (``success``, ``missing-packets``, ...,
         including ``aborted`` buffers cancelled when acquisition stops, which
@@ -120,6 +133,7 @@ class StreamStats:
     incomplete: int = 0
     dropped: int = 0
     queue_overflow: int = 0
+    left_at_stop: int = 0
     by_status: dict[str, int] = field(default_factory=dict)
     stream: dict[str, Any] = field(default_factory=dict)
 
@@ -130,6 +144,7 @@ class StreamStats:
             "incomplete": self.incomplete,
             "dropped": self.dropped,
             "queue_overflow": self.queue_overflow,
+            "left_at_stop": self.left_at_stop,
             "by_status": dict(self.by_status),
             "stream": dict(self.stream),
         }
@@ -189,6 +204,7 @@ class Camera(abc.ABC):
         self._running = False
         self._finished = threading.Event()  # a finite source has delivered everything
         self._opened = False
+        self._lost: str | None = None  # why the camera stopped answering, once it has
 
     # ---------------------------------------------------------------- context
     def __enter__(self) -> Camera:
@@ -302,6 +318,8 @@ class Camera(abc.ABC):
         """Start acquisition (frames begin to fill the queue)."""
         if self._running:
             return
+        if self._lost is not None:
+            raise CameraDisconnectedError(f"camera {self.camera_id} disconnected: {self._lost}")
         with self._stats_lock:
             self._stats = StreamStats()
         self._finished.clear()
@@ -320,6 +338,43 @@ class Camera(abc.ABC):
     def running(self) -> bool:
         """True between :meth:`start` and :meth:`stop`."""
         return self._running
+
+    @property
+    def lost(self) -> str | None:
+        """Why the camera stopped answering (``None`` while it answers)."""
+        return self._lost
+
+    def _connection_lost(self, reason: str) -> None:
+        """Record (from any thread) that the camera went away; the first reason is kept."""
+        if self._lost is None:
+            self._lost = str(reason)
+
+    def take_queued(self) -> list[CapturedFrame]:
+        """The frames still in the queue after :meth:`stop` (delivered, never read), removed from it."""
+        out = []
+        while True:
+            try:
+                out.append(self._queue.get_nowait())
+            except queue.Empty:
+                return out
+
+    def unread(self, n: int) -> None:
+        """Count ``n`` delivered frames that the consumer leaves unread at the end.
+
+        A source that holds every frame until it is read
+        (:attr:`waits_for_reader`) still has them: they are taken back from
+        ``good``.  A live camera's frames are lost: they count as dropped
+        (and ``left_at_stop``).
+        """
+        if n <= 0:
+            return
+        with self._stats_lock:
+            if self.waits_for_reader:
+                self._stats.good -= n
+                self._stats.by_status["success"] = self._stats.by_status.get("success", 0) - n
+            else:
+                self._stats.dropped += n
+                self._stats.left_at_stop += n
 
     @property
     def exhausted(self) -> bool:
@@ -363,6 +418,9 @@ class Camera(abc.ABC):
         ------
         FrameTimeout
             No frame for ``idle_timeout`` seconds.
+        CameraDisconnectedError
+            The camera stopped answering (:attr:`lost`); raised once every
+            frame it delivered before has been yielded.
         """
         last = time.monotonic()
         outstanding = False
@@ -378,6 +436,8 @@ class Camera(abc.ABC):
                 last = time.monotonic()
                 yield frame
                 continue
+            if self._lost is not None and self._queue.empty():
+                raise CameraDisconnectedError(f"camera {self.camera_id} disconnected: {self._lost}")
             if self.exhausted:
                 return
             if idle_timeout is not None and time.monotonic() - last > idle_timeout:
@@ -406,7 +466,7 @@ class Camera(abc.ABC):
         """A snapshot of the acquisition counters."""
         with self._stats_lock:
             s = self._stats
-            snap = StreamStats(s.good, s.incomplete, s.dropped, s.queue_overflow,
+            snap = StreamStats(s.good, s.incomplete, s.dropped, s.queue_overflow, s.left_at_stop,
                                dict(s.by_status), dict(s.stream))
         snap.stream.update(self._backend_stats())
         return snap
@@ -433,7 +493,9 @@ class Camera(abc.ABC):
 
         With ``block=False`` (a live camera) a full queue drops the frame and
         counts it; with ``block=True`` (a lossless file source) it waits for
-        room until ``stop`` is set.  Returns True when the frame was queued.
+        room until ``stop`` is set (then a source that :attr:`waits_for_reader`
+        takes the frame back from ``good``; any other counts it dropped).
+        Returns True when the frame was queued.
         """
         with self._stats_lock:
             self._stats.good += 1
@@ -454,8 +516,12 @@ class Camera(abc.ABC):
             except queue.Full:
                 if stop is not None and stop.is_set():
                     with self._stats_lock:
-                        self._stats.dropped += 1
-                        self._stats.queue_overflow += 1
+                        if self.waits_for_reader:  # the recording still holds it: not delivered, not lost
+                            self._stats.good -= 1
+                            self._stats.by_status["success"] -= 1
+                        else:
+                            self._stats.dropped += 1
+                            self._stats.queue_overflow += 1
                     return False
 
     def _drain_queue(self) -> None:

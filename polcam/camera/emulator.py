@@ -27,7 +27,7 @@ from pathlib import Path
 
 from polcam.errors import CameraUnavailableError
 
-__all__ = ["EMULATOR", "emulator_available", "gige_emulator"]
+__all__ = ["EMULATOR", "EmulatorId", "emulator_available", "gige_emulator"]
 
 #: The emulator's executable name (Aravis 0.8).
 EMULATOR = "arv-fake-gv-camera-0.8"
@@ -38,6 +38,13 @@ _LOCK = Path(tempfile.gettempdir()) / "polcam-gige-emulator.lock"
 def emulator_available() -> bool:
     """True when the emulator executable is on PATH."""
     return shutil.which(EMULATOR) is not None
+
+
+class EmulatorId(str):
+    """The Aravis device id of a running emulator (a ``str``), with its ``process``
+    (:class:`subprocess.Popen`): a test kills it to pull the cable."""
+
+    process: subprocess.Popen[bytes]
 
 
 @contextlib.contextmanager
@@ -65,7 +72,7 @@ def _exclusive(timeout: float) -> Iterator[None]:
 
 @contextlib.contextmanager
 def gige_emulator(*, serial: str | None = None, lost_per_thousand: int = 0,
-                  start_timeout: float = 15.0, lock_timeout: float = 120.0) -> Iterator[str]:
+                  start_timeout: float = 15.0, lock_timeout: float = 120.0) -> Iterator[EmulatorId]:
     """Run the GigE Vision emulator on 127.0.0.1 for the duration of a ``with`` block.
 
     Parameters
@@ -82,8 +89,9 @@ def gige_emulator(*, serial: str | None = None, lost_per_thousand: int = 0,
 
     Yields
     ------
-    str
-        The Aravis device id, ``Aravis-Fake-<serial>``.
+    EmulatorId
+        The Aravis device id, ``Aravis-Fake-<serial>`` (a ``str``), with the
+        emulator's ``process``.
 
     Raises
     ------
@@ -116,7 +124,9 @@ def gige_emulator(*, serial: str | None = None, lost_per_thousand: int = 0,
                         f"{EMULATOR} did not appear as {device_id} within {start_timeout:g} s"
                     )
                 time.sleep(0.2)
-            yield device_id
+            dev = EmulatorId(device_id)
+            dev.process = proc
+            yield dev
         finally:
             proc.terminate()
             try:

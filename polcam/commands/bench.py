@@ -18,9 +18,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.bench == "quality":
         from polcam.bench import quality
 
+        if args.set == "random":
+            return _quality_family(args)
         scenes = args.scenes or quality.scene_set(args.set)
         scores, stats = quality.run(scenes=scenes, methods=args.methods, size=args.size,
-                                    seed=args.seed, mono=args.mono)
+                                    seed=0 if args.seed is None else args.seed, mono=args.mono)
         print(quality.format_object_psnr(scores))
         for f in quality.write_outputs(scores, stats, args.out or Path("bench-output") / "quality"):
             print(f"wrote {f}")
@@ -40,6 +42,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         return speed.run_args(args)
     if args.bench == "real":
+        if args.relit:
+            from polcam.bench import relit
+
+            return relit.run_args(args)
         from polcam.bench import real
 
         return real.run_args(args)
@@ -52,6 +58,33 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         return cal_bench.run_args(args)
     raise AssertionError(args.bench)
+
+
+def _quality_family(args: argparse.Namespace) -> int:
+    """``polcam bench quality --set random``: a split of the randomized scene family."""
+    from polcam.bench import quality
+    from polcam.errors import PolcamError
+    from polcam.synth.family import scene_name, split_seeds
+
+    try:
+        seeds, master = split_seeds(args.split, args.n, seed=args.seed)
+    except PolcamError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if master is not None:
+        print(f"test split: master seed {master} (reproduce this run with --split test --seed {master})")
+    print("scenes: " + " ".join(scene_name(s) for s in seeds), flush=True)
+    try:
+        scores, stats, _, _ = quality.run_family(args.split, args.n, seed=master, size=args.size,
+                                                 methods=args.methods, mono=args.mono)
+    except PolcamError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(quality.family_summary(scores))
+    out = args.out or Path("bench-output") / f"quality-{args.split}{'-mono' if args.mono else ''}"
+    for f in quality.write_outputs(scores, stats, out):
+        print(f"wrote {f}")
+    return 0
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -85,12 +118,18 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                                      "and object mask; CSV, Markdown, plot), beside the paper's tables.")
     bq.add_argument("--methods", nargs="+", help="only these methods")
     bq.add_argument("--scenes", nargs="+", help="only these scenes (default: those of --set)")
-    bq.add_argument("--set", choices=("paper", "stress", "all"), default="paper",
-                    help="scene set: the paper's, polcam's stress scenes, or both (default paper)")
+    bq.add_argument("--set", choices=("paper", "stress", "all", "random"), default="paper",
+                    help="scene set: the paper's, polcam's stress scenes, both, or the randomized family "
+                         "(polcam.synth.family; default paper)")
+    bq.add_argument("--split", choices=("validation", "test"), default="validation",
+                    help="with --set random: validation (fixed seeds, for choices) or test (fresh seeds at "
+                         "every run, printed; default validation)")
+    bq.add_argument("--n", type=int, default=40, help="with --set random: number of scenes (default 40)")
     bq.add_argument("--mono", action="store_true",
                     help="score the scenes' luminance with the methods that take mono stacks")
     bq.add_argument("--size", type=int, default=128, help="scene side in pixels (default 128)")
-    bq.add_argument("--seed", type=int, default=0, help="random seed of the scenes (default 0)")
+    bq.add_argument("--seed", type=int, help="noise seed of the named scenes (default 0); with --set random "
+                                             "--split test: the master seed of the scene seeds (default fresh)")
     bq.add_argument("--out", type=Path, help="output folder (default bench-output/quality)")
     from polcam.bench import speed as _speed
     from polcam.calibration import bench as _cal_bench

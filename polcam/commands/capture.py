@@ -4,11 +4,20 @@ The command line of :mod:`polcam.acquisition`: open and configure the camera
 (:mod:`polcam.commands._args`), turn SIGINT / SIGTERM into a clean stop (a
 second signal abandons the frames still queued for writing), run
 :func:`polcam.acquisition.run_capture`, print the summary.
+
+Exit statuses (docs/reliability.md): 0 the capture ran to its stop condition
+(frames, duration, end of a replay, a signal); 1 it ended with an error (no
+frame for ``--timeout`` seconds, live processing failed); 2 refused before
+the first frame (bad options, an output folder that cannot be written, a
+calibration that does not fit); 3 the camera cannot be opened; 4 the camera
+disconnected during the capture; 5 writing a frame failed.  With 1, 4 and 5
+the summary is written (or its counts printed) as after a clean stop.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
@@ -18,11 +27,17 @@ from pathlib import Path
 from typing import Any
 
 from polcam.acquisition import SAVE_FORMATS, StopRequest, run_capture
+from polcam.acquisition.run import ON_WRITE_ERROR
 from polcam.camera import open_camera
 from polcam.camera.base import CameraSettingError
 from polcam.commands._args import add_camera_arguments, camera_options, configure_camera, parse_options
 
-__all__ = ["add_capture_parser", "cmd_capture", "main"]
+__all__ = ["EXIT_DISCONNECTED", "EXIT_WRITE_FAILED", "add_capture_parser", "cmd_capture", "main"]
+
+#: Exit status of a capture the camera's disconnection ended.
+EXIT_DISCONNECTED = 4
+#: Exit status of a capture in which a frame could not be written.
+EXIT_WRITE_FAILED = 5
 
 
 def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -36,7 +51,10 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
                     "atomically; the newest frame is processed live (S0, DoLP, AoLP, Imin at the "
                     "polarizer-cell resolution, and the chosen separation) and shown in Rerun; with "
                     "--calibration the live view is computed from the corrected mosaic while the saved "
-                    "frames stay raw. Ctrl-C or SIGTERM stops cleanly and writes OUT/summary.json.",
+                    "frames stay raw. Ctrl-C or SIGTERM stops cleanly and writes OUT/summary.json. "
+                    "Exit status: 0 done, 1 ended with an error, 2 refused before the first frame (e.g. an "
+                    "output folder that cannot be written), 3 camera unavailable, 4 camera disconnected, "
+                    "5 a frame could not be written; the summary is written in every case but 2 and 3.",
     )
     c.add_argument("--device", required=True, help="camera id, serial or address, or replay:DIR")
     stop = c.add_mutually_exclusive_group()
@@ -47,7 +65,13 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
     c.add_argument("--format", default="raw", choices=tuple(SAVE_FORMATS),
                    help="frame files: raw (the camera's bytes, default), tiff (uncompressed), npy, "
                         "png (lossless, slow: ~90 ms a 5 MP frame)")
-    c.add_argument("--append", action="store_true", help="allow an --out folder that holds frames already")
+    c.add_argument("--append", action="store_true",
+                   help="allow an --out folder that holds frames already (numbering continues; the earlier "
+                        "summary.json is kept and this capture's goes to summary-2.json, summary-3.json, ...)")
+    c.add_argument("--on-write-error", default="stop", choices=ON_WRITE_ERROR,
+                   help="when a frame cannot be written (disk full, folder gone read-only): stop the capture "
+                        "at once (default), or continue-live: stop saving and keep the live view going; "
+                        "either way the folder and the reason are printed and the capture exits with 5")
     add_camera_arguments(c)
     c.add_argument("--calibration", type=Path, metavar="FILE",
                    help="calibration file (polcam calibrate) of this camera at these settings: the first "
@@ -81,21 +105,38 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
     c.add_argument("--live-workers", type=int, default=2, help="live processing threads (default 2)")
     c.add_argument("--save-workers", type=int, default=4,
                    help="writer threads (default 4: writes and fsync overlap)")
-    c.add_argument("--quiet", action="store_true", help="no progress lines")
+    c.add_argument("--quiet", action="store_true",
+                   help="no progress lines (about one a second on stderr); errors and the summary still print")
     c.set_defaults(func=cmd_capture)
     return c
 
 
 def _print_summary(summary: dict[str, Any]) -> None:
-    keys = ("frames_good", "frames_incomplete", "frames_dropped", "frames_saved", "frames_processed",
-            "frames_skipped", "separations")
+    keys = ("frames_good", "frames_received", "frames_incomplete", "frames_dropped", "frames_saved",
+            "frames_save_failed", "frames_unsaved", "frames_processed", "frames_skipped", "separations")
     line = ", ".join(f"{k[7:] if k.startswith('frames_') else k} {summary[k]}" for k in keys)
     print(f"capture stopped ({summary['stop_reason']}) after {summary['duration_s']:.1f} s: {line}; "
           f"{summary['fps']:.1f} fps received, {summary['fps_processed']:.1f} fps processed")
     if summary.get("out"):
-        print(f"frames and summary.json in {summary['out']}")
+        where = summary.get("summary_file")
+        if where and Path(where).parent == Path(summary["out"]):
+            print(f"frames and {Path(where).name} in {summary['out']}")
+        else:
+            print(f"frames in {summary['out']}; {summary.get('summary_error') or 'summary not written there'}",
+                  file=sys.stderr)
+            print(f"summary written to {where}" if where else "summary not written anywhere: the counts are above",
+                  file=sys.stderr)
     if summary.get("error"):
         print(f"error: {summary['error']}", file=sys.stderr)
+
+
+def exit_status(summary: dict[str, Any]) -> int:
+    """The exit status of a capture that ran (see the module docstring)."""
+    if str(summary.get("stop_reason", "")).startswith("camera disconnected"):
+        return EXIT_DISCONNECTED
+    if summary.get("write_error") or summary.get("frames_save_failed"):
+        return EXIT_WRITE_FAILED
+    return 1 if summary.get("error") else 0
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
@@ -123,6 +164,11 @@ def cmd_capture(args: argparse.Namespace) -> int:
         from polcam.calibration import load_calibration
 
         calibration = load_calibration(args.calibration)
+    created = out is not None and not out.exists()
+    if out is not None:  # before the camera is touched: a folder that cannot take frames is refused now
+        from polcam.acquisition.saving import check_writable
+
+        check_writable(out)
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         with open_camera(args.device, **camera_options(args)) as cam:
@@ -136,12 +182,14 @@ def cmd_capture(args: argparse.Namespace) -> int:
                           f"({', '.join(calibration.applied_stages) or 'no stages'}); frames saved raw")
 
             def progress(p: dict[str, Any]) -> None:
-                if "message" in p:
-                    print(p["message"], file=sys.stderr)
+                if "message" in p:  # errors and notices print even with --quiet
+                    print(p["message"], file=sys.stderr, flush=True)
+                    return
+                if args.quiet:
                     return
                 print(f"  {p['received']} frames, {p['fps']:.0f} fps, saved {p['saved']}, "
                       f"processed {p['processed']}, dropped {p['dropped']}, incomplete {p['incomplete']}",
-                      file=sys.stderr)
+                      file=sys.stderr, flush=True)
 
             summary = run_capture(
                 cam, out=out, frames=args.frames, duration=args.duration, save_format=args.format,
@@ -150,17 +198,20 @@ def cmd_capture(args: argparse.Namespace) -> int:
                 software_trigger=trigger == "software", append=args.append,
                 save_workers=args.save_workers, raw_every=args.raw_every, view_scale=args.view_scale,
                 live_workers=args.live_workers,
-                progress=None if args.quiet else progress, calibration=calibration,
+                progress=progress, calibration=calibration, on_write_error=args.on_write_error,
                 rerun_bind=args.bind, rerun_port=args.port,
                 hold_illuminant=not args.illuminant_each_frame,
             )
+    except BaseException:
+        if created and out is not None:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # refused before any frame: the empty folder made for it goes again
+        raise
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
     _print_summary(summary)
-    if summary["error"] or summary["frames_save_failed"]:
-        return 1
-    return 0
+    return exit_status(summary)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -15,11 +15,11 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     v = subparsers.add_parser(
         "view", help="show an .rrd, a process output folder or a raw folder in the Rerun viewer",
         description="Show PATH in Rerun with polcam's layout (raw, S0, DoLP, AoLP, diffuse, specular, "
-                    "statistics): an .rrd recording, a `polcam process` output folder (its layers and maps "
-                    "read from disk) or a folder of raw frames (demosaiced and separated on the fly with the "
+                    "statistics for a live capture): an .rrd recording, a `polcam process` output folder (its layers "
+                    "and maps read from disk), a `polcam demo` output folder (its demo.rrd) or a folder of raw frames (demosaiced and separated on the fly with the "
                     "default methods). Without --web the native viewer opens (needs a display); with --web "
                     "Rerun's web viewer is served and its URL printed, until Ctrl-C or SIGTERM.")
-    v.add_argument("path", type=Path, help=".rrd file, process output folder or raw folder")
+    v.add_argument("path", type=Path, help=".rrd file, process or demo output folder, or raw folder")
     v.add_argument("--web", action="store_true", help="serve the web viewer instead of opening the native one")
     v.add_argument("--port", type=int, default=9090,
                    help="--web: port of the web viewer (its data use port + 1; default 9090; 0: any free port)")

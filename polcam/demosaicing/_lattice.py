@@ -56,7 +56,8 @@ def _quincunx_kernel(period: int) -> np.ndarray:
     return (along * across).astype(np.float32)
 
 
-def bilinear_lattice(img: np.ndarray, offsets: list[tuple[int, int]], period: int) -> np.ndarray:
+def bilinear_lattice(img: np.ndarray, offsets: list[tuple[int, int]], period: int, *,
+                     out: np.ndarray | None = None) -> np.ndarray:
     """Bilinear interpolation of the samples at ``offsets`` (mod ``period``), by normalised
     convolution with mirrored borders (BORDER_REFLECT).
 
@@ -75,12 +76,60 @@ def bilinear_lattice(img: np.ndarray, offsets: list[tuple[int, int]], period: in
         (y, x) offsets of the lattice within one period.
     period
         Period of the pattern in pixels.
+    out
+        Optional C-contiguous (H, W) float32 array to write the result into.
+
+    Notes
+    -----
+    Beyond ``period - 1`` pixels from the edges the lattice's kernel weights sum
+    to exactly 1 (dyadic values), so there the normalised convolution is the
+    convolution itself.  Only bands ``period`` pixels wide at the edges need the
+    division (and, at the corners, the tent fallback): they are computed on
+    strips 2 to 3 periods wide along each edge, starting on a whole period so
+    every lattice keeps its phase, which give the same values as the whole
+    image there (a strip's far edge is beyond the kernel's reach).
 
     Returns
     -------
     numpy.ndarray
         (H, W) float32.
     """
+    h, w = img.shape
+    p = period
+    top, left = _tail_start(h, p), _tail_start(w, p)
+    if top is None or left is None:
+        res = _bilinear_lattice_whole(img, offsets, p)
+        if out is None:
+            return res
+        out[...] = res
+        return out
+    sparse = np.zeros((h, w), np.float32)
+    for oy, ox in offsets:
+        sparse[oy::p, ox::p] = img[oy::p, ox::p]
+    if len(offsets) == 1:
+        k = _tent(p)
+        out = cv2.sepFilter2D(sparse, cv2.CV_32F, k, k, dst=out, borderType=cv2.BORDER_REFLECT)
+    else:
+        out = cv2.filter2D(sparse, cv2.CV_32F, _quincunx_kernel(p), dst=out, borderType=cv2.BORDER_REFLECT)
+    del sparse
+    # the edge bands from strips that start on a lattice period (the phase kept) and reach
+    # 2p past the band: a strip's far edge is more than the kernel radius (p - 1) away
+    out[:p] = _bilinear_lattice_whole(img[:3 * p], offsets, p)[:p]
+    out[h - p:] = _bilinear_lattice_whole(img[top:], offsets, p)[h - p - top:]
+    out[:, :p] = _bilinear_lattice_whole(img[:, :3 * p], offsets, p)[:, :p]
+    out[:, w - p:] = _bilinear_lattice_whole(img[:, left:], offsets, p)[:, w - p - left:]
+    return out
+
+
+def _tail_start(n: int, p: int) -> int | None:
+    """Start of the last strip along an axis of ``n``: a multiple of ``p`` at least 2p before
+    the end; None where the axis is too short for the band scheme (under 4 periods)."""
+    start = ((n - 2 * p) // p) * p
+    return start if n >= 4 * p and start >= p else None
+
+
+def _bilinear_lattice_whole(img: np.ndarray, offsets: list[tuple[int, int]], period: int) -> np.ndarray:
+    """:func:`bilinear_lattice` computed on the whole image (normalised convolution everywhere)."""
     h, w = img.shape
     sparse = np.zeros((h, w), np.float32)
     if len(offsets) == 1:

@@ -117,7 +117,14 @@ def to_float(raw: np.ndarray | Frame, *, black_level: float = 0.0,
         integer nor float, or a white level not above the black level.
     """
     if isinstance(raw, Frame):
-        return raw.normalized()
+        black = float(raw.black_level)
+        span = float(raw.white_level) - black  # type: ignore[arg-type]
+        if span <= 0:
+            return raw.normalized()  # its error names the levels
+        out = np.asarray(raw.mosaic).astype(np.float32)  # Frame.normalized's arithmetic, in place
+        out -= np.float32(black)
+        out /= np.float32(span)
+        return out
     arr = np.asarray(raw)
     if arr.ndim != 2:
         raise FrameReadError(f"raw mosaic of shape {arr.shape}: expected a 2-D (H, W) array")
@@ -134,7 +141,11 @@ def to_float(raw: np.ndarray | Frame, *, black_level: float = 0.0,
         raise FrameReadError(f"white level {white} is not above black level {black_level}")
     if arr.dtype == np.float32 and black_level == 0 and span == 1.0:
         return np.ascontiguousarray(arr)
-    return ((arr.astype(np.float32) - np.float32(black_level)) / np.float32(span)).astype(np.float32)
+    out = arr.astype(np.float32)  # in place from here: one full-size array
+    if black_level != 0:
+        out -= np.float32(black_level)
+    out /= np.float32(span)
+    return out
 
 
 def demosaic(

@@ -32,6 +32,7 @@ full-resolution filter of that width.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 
 import cv2
@@ -176,7 +177,8 @@ def _filter_at_samples(samples: np.ndarray, period: int, sigma: float) -> np.nda
 
 
 def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, common_sigma: float,
-                       offset_sigma: float, residual_sigma: float, eps: float) -> np.ndarray:
+                       offset_sigma: float, residual_sigma: float, eps: float,
+                       out: np.ndarray | None = None) -> np.ndarray:
     """Re-estimate every angle of a colour layout from the polarization ratios of all colours.
 
     Parameters
@@ -193,6 +195,9 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
         Gaussians (pixels) of the colour offsets (step 1) and the colour residual (step 3).
     eps
         Offset of the ratio's denominator, relative to the mosaic's mean.
+    out
+        Array of the stack's shape and dtype for the result; it may be ``stack`` itself (the
+        stage reads the stack before it writes), which spares a fresh 4 x H x W x 3 array.
 
     Returns
     -------
@@ -210,7 +215,6 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
     channels = stack.shape[-1]
     period = lay.period
     half = stack.sum(axis=0) * np.float32(0.25)  # S0 / 2 per channel, (H, W, C)
-    ci = lay.channel_index(h, w)
     own = np.empty((h, w), np.float32)  # S0 / 2 of each pixel's own colour
     for c in range(channels):
         for k in range(4):
@@ -221,7 +225,10 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
     # first-stage S0 (near 0 or negative on aliased detail) from blowing it up
     val = np.clip(img / (np.maximum(own, 0) + e), 0, 2)
     base = np.maximum(half, 0) + e  # (H, W, C)
-    out = np.empty_like(stack)
+    if out is None:
+        out = np.empty_like(stack)
+    hh, ww = -(-h // 2), -(-w // 2)
+    local = threading.local()  # one ratio buffer per pool thread, reused by its jobs
 
     def job(k: int) -> None:
         lattices = [sublattices(lay, k, c) for c in range(channels)]
@@ -245,8 +252,9 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
         # q_c = T(u + R_c) = U + T(R_c), T the shared ratio's filter (R_c smooth: T(R_c) ~ R_c)
         resid = sub - _filter_at_samples(u, 2, common_sigma)
         # the ratios of every colour at every pixel, assembled phase by phase in pixel order
-        hh, ww = -(-h // 2), -(-w // 2)
-        q = np.empty((hh, 2, ww, 2, channels), np.float32)
+        q = getattr(local, "q", None)
+        if q is None:
+            q = local.q = np.empty((hh, 2, ww, 2, channels), np.float32)
         for c in range(channels):
             r_c = lattice_smooth(resid, sub_lat[c], 2, residual_sigma / 2)
             r_c += u

@@ -6,14 +6,17 @@ tent whose radius is the lattice period on the 2-periodic mono lattices and the
 diagonals on the G quincunx (which, unlike a square tent, vanishes at the other
 G samples, so G samples are kept).  Mirrored borders (OpenCV BORDER_REFLECT).
 At cell resolution the cell images of a colour sensor form one Bayer mosaic per
-angle, interpolated with the same kernels at period 2.
+angle, interpolated with the same kernels at period 2.  The four angles run on
+a thread pool (OpenCV releases the GIL).
 """
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
-from polcam.demosaicing._lattice import bilinear_cells, bilinear_lattice, interleave_rgb, sublattices
+from polcam.demosaicing._lattice import bilinear_cells, bilinear_lattice, interleave_rgb, run_jobs, sublattices
 from polcam.demosaicing._registry import register
 from polcam.mosaic import Layout
 
@@ -34,11 +37,16 @@ def bilinear(img: np.ndarray, lay: Layout) -> np.ndarray:
     p = lay.period
     if not lay.is_color:
         out = np.empty((4, h, w), dtype=np.float32)
-        for k in range(4):
-            out[k] = bilinear_lattice(img, sublattices(lay, k, 0), p)
+
+        def mono(k: int) -> None:
+            bilinear_lattice(img, sublattices(lay, k, 0), p, out=out[k])
+
+        run_jobs([partial(mono, k) for k in range(4)])
         return out
     out = np.empty((4, h, w, 3), dtype=np.float32)
-    for k in range(4):
-        planes = [bilinear_lattice(img, sublattices(lay, k, c), p) for c in range(3)]
-        interleave_rgb(planes, out[k])
+
+    def colour(k: int) -> None:
+        interleave_rgb([bilinear_lattice(img, sublattices(lay, k, c), p) for c in range(3)], out[k])
+
+    run_jobs([partial(colour, k) for k in range(4)])
     return out

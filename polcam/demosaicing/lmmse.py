@@ -424,7 +424,8 @@ def run_lmmse(img: np.ndarray, lay: Layout, *, weights: dict[str, np.ndarray],
     if mode == "shared-ratio":
         stack = shared_ratio_stage(img, stack, lay, common_sigma=float(params["common_sigma"]),
                                    offset_sigma=float(params["offset_sigma"]),
-                                   residual_sigma=float(params["residual_sigma"]), eps=float(params["ratio_eps"]))
+                                   residual_sigma=float(params["residual_sigma"]), eps=float(params["ratio_eps"]),
+                                   out=stack)  # in place: the first stage is not needed after it
     elif mode != "none":
         kernel = str(params.get("kernel", "gauss"))
         sigma = float(params["tent_sigma"] if kernel == "tent" else params["sigma" if lay.is_color else "mono_sigma"])

@@ -131,6 +131,16 @@ def _parse_description(text: str, path: Path) -> tuple[dict[str, Any], dict[str,
     return {}, {"description": text}
 
 
+def _first_line(text: str) -> str:
+    """A library's error as one line: its first line, and how many more it had (OpenImageIO repeats
+    a truncated file's error once per scanline)."""
+    lines = [ln.strip() for ln in str(text).splitlines() if ln.strip()]
+    if not lines:
+        return "unknown error"
+    more = f" (and {len(lines) - 1} more lines like it)" if len(lines) > 1 else ""
+    return lines[0][:300] + more
+
+
 def read_pixels(inp: Any, nchannels: int, fmt: Any, p: Path) -> tuple[Any, dict[str, Any]]:
     """All pixels of an open OpenImageIO ``inp`` as ``fmt`` and its extra attributes (name -> value).
 
@@ -140,7 +150,7 @@ def read_pixels(inp: Any, nchannels: int, fmt: Any, p: Path) -> tuple[Any, dict[
     err = inp.geterror()
     if arr is None or err:
         raise FrameReadError(
-            f"cannot read the pixels (truncated or corrupt file?): {err or 'unknown error'}", path=p
+            f"cannot read the pixels (truncated or corrupt file?): {_first_line(err)}", path=p
         )
     return arr, {a.name: a.value for a in inp.spec().extra_attribs}
 
@@ -164,8 +174,8 @@ def _read_oiio(p: Path, max_pixels: int = MAX_PIXELS) -> _Decoded:
 
     inp = oiio.ImageInput.open(str(p))
     if inp is None:
-        msg = oiio.geterror() or "unknown error"
-        raise FrameReadError(f"cannot read image (corrupt or truncated file?): {msg}", path=p)
+        raise FrameReadError(f"cannot read image (corrupt or truncated file?): {_first_line(oiio.geterror())}",
+                             path=p)
     try:
         spec = inp.spec()
         fmt_name = inp.format_name()

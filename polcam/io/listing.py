@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -16,11 +17,50 @@ def is_raw_file(path: Path) -> bool:
     return path.is_file() and path.suffix.lower() in RAW_EXTENSIONS and not path.name.startswith(".")
 
 
-def raw_files_in(folder: str | Path, *, recursive: bool = False) -> list[Path]:
-    """The raw frame files of one folder, sorted by path (sub-folders too with ``recursive``)."""
+def raw_files_in(folder: str | Path, *, recursive: bool = False,
+                 skipped: list[tuple[Path, str]] | None = None) -> list[Path]:
+    """The raw frame files of one folder, sorted by path (sub-folders too with ``recursive``).
+
+    With ``recursive``, symbolic links to folders are followed, except a link
+    back to a folder it sits in (a loop); such links, dangling links and
+    unreadable folders are left out and, when ``skipped`` is given, appended
+    to it as ``(path, reason)``.
+    """
     folder = Path(folder)
-    it = folder.rglob("*") if recursive else folder.iterdir()
-    return sorted(f for f in it if is_raw_file(f))
+    if not recursive:
+        return sorted(f for f in folder.iterdir() if is_raw_file(f))
+    out: list[Path] = []
+
+    def note(path: Path, why: str) -> None:
+        if skipped is not None:
+            skipped.append((path, why))
+
+    def walk(d: Path, ancestors: dict[tuple[int, int], Path]) -> None:
+        try:
+            entries = sorted(os.scandir(d), key=lambda e: e.name)
+        except OSError as exc:
+            note(d, f"cannot list the folder: {exc.strerror or exc}")
+            return
+        for e in entries:
+            path = Path(e.path)
+            try:
+                if e.is_dir():
+                    st = path.stat()
+                    key = (st.st_dev, st.st_ino)
+                    if key in ancestors:
+                        note(path, f"symbolic link loop: it leads back to {ancestors[key]}")
+                        continue
+                    walk(path, {**ancestors, key: path})
+                elif is_raw_file(path):
+                    out.append(path)
+                elif e.is_symlink() and not path.exists():
+                    note(path, f"dangling symbolic link to {os.readlink(path)}")
+            except OSError as exc:  # ELOOP of a link to itself, permissions
+                note(path, f"skipped: {exc.strerror or exc}")
+
+    st = folder.stat()
+    walk(folder, {(st.st_dev, st.st_ino): folder})
+    return sorted(out)
 
 
 def list_raw_files(paths: Iterable[str | Path], *, recursive: bool = False) -> list[Path]:

@@ -67,7 +67,8 @@ sit at the top of the stored word (12-bit data in 16-bit words shifted up by
 Every problem is a :class:`polcam.errors.FrameReadError` (or
 :class:`PixelFormatError` for a pixel format) whose message starts with the
 file name: missing, empty, truncated or corrupt file, a size that does not
-match the sidecar, odd width or height (a polarization mosaic is made of 2x2
+match the sidecar (a sidecar ``width``/``height`` that contradicts the
+size the image itself has is refused, naming both), odd width or height (a polarization mosaic is made of 2x2
 cells), a bit depth wider than the stored samples, values above the bit
 depth or the white level, NaN/inf in a float array, non-2-D arrays, unknown
 pixel formats and unsupported extensions.
@@ -103,7 +104,7 @@ from polcam.io.decoders import (
 from polcam.io.sidecar import read_sidecar, sidecar_path, validate_metadata
 from polcam.mosaic import Layout, PixelFormat, layout_for_format, parse_layout
 
-__all__ = ["MAX_PIXELS", "RAW_EXTENSIONS", "deinterleave_angles", "interleave_angles", "read_frame"]
+__all__ = ["MAX_PIXELS", "RAW_EXTENSIONS", "declared_size", "deinterleave_angles", "interleave_angles", "read_frame"]
 
 
 def read_frame(
@@ -215,6 +216,15 @@ def read_frame(
     mosaic = dec.mosaic
     if mosaic.ndim != 2:  # pragma: no cover - every reader returns 2-D
         raise FrameReadError(f"decoded image has shape {mosaic.shape}: expected (height, width)", path=p)
+    if ext not in _DUMP_EXTENSIONS:  # a dump's size comes from them; any other file has its own
+        said = {k: opts[k] for k in ("width", "height") if opts.get(k) is not None}
+        have = {"width": mosaic.shape[1], "height": mosaic.shape[0]}
+        if any(int(v) != have[k] for k, v in said.items()):
+            src = sources.get("width", sources.get("height", "the sidecar"))
+            raise FrameReadError(
+                f"{src} gives {said.get('width', '?')}x{said.get('height', '?')} (width x height) but the "
+                f"image is {have['width']}x{have['height']}: the sidecar belongs to another frame, or "
+                "the image was cropped or resized", path=p)
 
     # bit depth: keyword > sidecar > embedded > pixel format > file header > container
     depth = merged.get("bit_depth")
@@ -299,3 +309,57 @@ def read_frame(
         white_level=white,
         metadata=metadata,
     )
+
+
+def declared_size(path: str | PathLike[str]) -> tuple[int, int] | None:
+    """``(width, height)`` a raw file declares, from its header or sidecar, without reading the pixels.
+
+    Parameters
+    ----------
+    path
+        A raw frame file (:data:`RAW_EXTENSIONS`).
+
+    Returns
+    -------
+    tuple of int or None
+        Width and height in pixels; ``None`` where the size cannot be told
+        without decoding (camera raw formats, unreadable headers, a dump
+        without width/height in its sidecar).  For a dump of four angle
+        planes this is the size the sidecar gives.
+    """
+    p = Path(path)
+    ext = p.suffix.lower()
+    try:
+        if ext in _OIIO_EXTENSIONS:
+            import OpenImageIO as oiio
+
+            inp = oiio.ImageInput.open(str(p))
+            if inp is None:
+                oiio.geterror()  # consumed: the frame's own read reports it
+                return None
+            try:
+                spec = inp.spec()
+                return int(spec.width), int(spec.height)
+            finally:
+                inp.close()
+        if ext in _PNM_EXTENSIONS:
+            import re
+
+            with open(p, "rb") as fh:
+                head = fh.read(1024)
+            m = re.match(rb"P[25]\s*(?:#[^\n\r]*[\n\r]\s*)*(\d+)\s*(?:#[^\n\r]*[\n\r]\s*)*(\d+)", head)
+            return (int(m.group(1)), int(m.group(2))) if m else None
+        if ext in _NPY_EXTENSIONS:
+            with open(p, "rb") as fh:
+                version = np.lib.format.read_magic(fh)
+                read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                        else np.lib.format.read_array_header_2_0)
+                shape = read(fh)[0]
+            return (int(shape[1]), int(shape[0])) if len(shape) == 2 else None
+        if ext in _DUMP_EXTENSIONS:
+            side = read_sidecar(p) or {}
+            if side.get("width") and side.get("height"):
+                return int(side["width"]), int(side["height"])
+    except (OSError, ValueError, FrameReadError):
+        return None
+    return None

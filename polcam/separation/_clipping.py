@@ -1,4 +1,4 @@
-"""Clipped samples: rebuilt from the unclipped angles, or filled from the neighbours.
+"""Clipped samples: rebuilt from the unclipped angles; clipped highlights filled from their border.
 
 Used by ``polarized-residual`` (docs/algorithm.md, polarized-residual: declipping before step 1,
 and the clipped highlights' fill of step 7).
@@ -15,13 +15,16 @@ from polcam import _imageops
 from polcam._xp import namespace
 from polcam.separation._illuminant import _SATURATED
 
-__all__ = ["declipped", "fill_clipped_highlights", "inpaint"]
+__all__ = ["declipped", "fill_clipped_highlights", "smooth_fill"]
 
 #: A clipped region is filled as a highlight in proportion to the share of its unclipped border
 #: that shows coherent polarized specular light: not at all below _RING_SHARE - _RING_RAMP / 2,
 #: wholly above _RING_SHARE + _RING_RAMP / 2.
 _RING_SHARE = 0.3
 _RING_RAMP = 0.4
+#: Chromaticity spread (intensity-weighted RMS) of a clipped region's border under which the border is
+#: one material, and so says what colour is under the clipping; none is filled from twice it.
+_ONE_MATERIAL = 0.02
 
 
 def declipped(stack: Any) -> Any:
@@ -105,64 +108,135 @@ def declipped(stack: Any) -> Any:
     return s
 
 
-def inpaint(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Fill ``img`` ((H, W, C) float >= 0) where ``mask`` ((H, W) bool) from its surroundings.
+def smooth_fill(img: np.ndarray, mask: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Fill ``img`` ((H, W, C) float32) where ``mask`` ((H, W) bool) smoothly from its surroundings.
 
-    Telea's fast-marching method (J. Graphics Tools 9(1), 2004; OpenCV's ``INPAINT_TELEA``) per
-    channel on 16-bit values (``img`` clipped to [0, 1]), radius 3 pixels (its cost grows with the
-    radius squared: a fiftieth of the side took seconds on a full-resolution frame).
+    Push-pull interpolation (Gortler et al., SIGGRAPH 1996, "pull-push"): the known pixels (weight
+    1, the masked ones 0) are reduced level by level with a Gaussian pyramid (weighted values and
+    weights alike) until the mask is covered, then each level takes its own weighted mean where its
+    weight is whole and the next coarser level's estimate, expanded, in proportion to its missing
+    weight.  Known pixels keep their values exactly; the fill is a smooth (Gaussian-expanded)
+    surface with the surroundings' colour, with no facets or seams (fast marching drew the
+    X-shaped "pyramids" of its marching order in large regions).  ``weights`` ((H, W) in [0, 1],
+    0 inside ``mask``), when given, replaces the known pixels' weight 1: the fill then draws on
+    each pixel in proportion.  Returns (H, W, C) float32.
     """
-    m = mask.astype(np.uint8)
-    radius = 3.0
-    out = np.empty_like(img, dtype=np.float32)
-    for c in range(img.shape[-1]):
-        # in 16 bits: OpenCV's float inpainting returns values outside its input's range
-        x = np.round(np.clip(img[..., c], 0.0, 1.0) * 65535.0).astype(np.uint16)
-        out[..., c] = cv2.inpaint(x, m, radius, cv2.INPAINT_TELEA).astype(np.float32) / 65535.0
-    return out
+    img = np.asarray(img, np.float32)
+    known = (~np.asarray(mask, bool)).astype(np.float32)
+    if weights is not None:
+        known = np.where(mask, 0.0, np.clip(weights, 0.0, 1.0)).astype(np.float32)
+    vals = [img * known[..., None]]
+    wts = [known]
+    while min(wts[-1].shape) > 1 and float(wts[-1].min()) <= 0.0:
+        vals.append(np.atleast_3d(cv2.pyrDown(vals[-1])))
+        wts.append(cv2.pyrDown(wts[-1]))
+    est = vals[-1] / np.maximum(wts[-1], 1e-12)[..., None]
+    for v, wt in zip(vals[-2::-1], wts[-2::-1]):
+        up = np.atleast_3d(cv2.pyrUp(est, dstsize=(wt.shape[1], wt.shape[0])))
+        alpha = np.clip(wt, 0.0, 1.0)[..., None]
+        est = alpha * (v / np.maximum(wt, 1e-12)[..., None]) + (1.0 - alpha) * up
+    return np.where(mask[..., None], est, img).astype(np.float32)
 
 
-def fill_clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, g: Any) -> Any:
-    """``polarized-residual``'s step 7: clipped highlights filled from their neighbours' diffuse by a multiple of ``g``.
+def _material_colour(px: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """The body chromaticity of the border pixels ``px`` ((N, 3) >= 0), its spread, and each pixel's weight.
 
-    ``diffuse``, ``measured`` (the mean over angles as measured) and ``ic`` (after declipping) are
-    (H, W, 3), ``spec`` (H, W) bool (coherent polarized specular light, step 3), ``g`` the (3,)
-    illuminant; numpy or torch.  Returns the layer, of the same kind.
+    Near a highlight the border still holds some specular light, which pulls its chromaticity
+    toward the illuminant's ``g``: the body colour is that of the pixels farthest from ``g``'s
+    chromaticity.  Each lit pixel is weighted by a ramp of that distance from its median
+    (weight 0) to its 0.9 quantile (weight 1), so that no pixel's vote switches under a small change.
+    Returns the intensity- and ramp-weighted mean chromaticity ((3,), sum 1), the weighted RMS
+    distance of theirs from it (inf for fewer than 4 lit pixels), and the weights ((N,) in [0, 1]).
+    """
+    tot = px.sum(axis=-1)
+    lit = tot > 3.0 / 255
+    wts = np.zeros(px.shape[0])
+    if int(lit.sum()) < 4:
+        return np.full(3, 1.0 / 3.0), float("inf"), wts
+    c = px[lit] / tot[lit, None]
+    dist = np.linalg.norm(c - g / g.sum(), axis=-1)
+    lo, hi = np.quantile(dist, [0.5, 0.9])
+    # (all of them alike when their distances are: one colour, no highlight light in the band)
+    ramp = np.clip((dist - lo) / (hi - lo), 0.0, 1.0) if hi - lo > 1e-6 else np.ones_like(dist)
+    wts[lit] = ramp
+    t = tot[lit] * ramp
+    if float(t.sum()) <= 0:
+        return np.full(3, 1.0 / 3.0), float("inf"), wts
+    mean = (c * t[:, None]).sum(axis=0) / t.sum()
+    return mean, float(np.sqrt((((c - mean) ** 2).sum(axis=-1) * t).sum() / t.sum())), wts
 
-    Saturated pixels (a channel at the white level in all four angles): that channel's polarization
-    sinusoid is not measured at all there, so its polarized light cannot be removed; the diffuse
-    is filled in from the neighbours (Telea's fast-marching inpainting) as far as a single
-    specular colour allows.  Only clipped highlights: a clipped region is filled in proportion
-    to the share of its unclipped border (a 2-pixel ring) that shows coherent polarized specular
-    light (``spec``, step 3), a ramp from none below 10 % to wholly above 50 % (``_RING_SHARE``,
-    ``_RING_RAMP``); an overexposed diffuse surface has none around it and is left as measured.
-    The labelling and the fast marching are sequential and run on the host (numpy and OpenCV); a
-    torch array's masks and layer are copied there and the filled layer back, only when a pixel
-    is clipped.
+
+def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
+                            light: Any = None) -> tuple[Any, dict[str, int]]:
+    """``polarized-residual``'s last step: clipped highlights filled smoothly with their own material's diffuse.
+
+    ``diffuse`` and ``measured`` (the mean over angles as measured) are (H, W, 3), ``spec`` (H, W)
+    bool or float in [0, 1] (how far each pixel shows specular light), ``light`` None or (H, W)
+    >= 0 (each border pixel's weight in the share, its intensity: dim pixels' votes are noise);
+    numpy or torch.  Returns the layer, of the same kind,
+    and counts of the pixels with a channel clipped at all four angles: ``clipped_pixels``,
+    ``clipped_filled`` (filled in part or whole) and ``clipped_as_measured`` (left as measured).
+
+    At such a pixel that channel is not measured at all, so nothing under the clipping is known
+    from the pixel itself.  Each 8-connected clipped region is filled only when its surroundings
+    say what is under it:
+
+    * it is a highlight: the share of its unclipped border (a 2-pixel ring) that shows coherent
+      polarized specular light, on a ramp from none below ``_RING_SHARE - _RING_RAMP / 2`` to
+      whole above ``_RING_SHARE + _RING_RAMP / 2`` (an overexposed matte surface has none);
+    * the border is one material: the intensity-weighted RMS spread of its diffuse chromaticity,
+      on a ramp from whole at ``_ONE_MATERIAL`` to none at twice it.
+
+    The fill is the border's diffuse interpolated smoothly into the region (:func:`smooth_fill`),
+    so it has the colour of its own material, never above the measurement in any channel; a
+    region's weight blends it with the measured light, and a region with weight 0 is left as
+    measured (its specular layer is 0 there).  The labelling and the pyramid run on the host
+    (numpy and OpenCV); a torch array's masks and layer are copied there and back, only when a
+    pixel is clipped.
     """
     xp = namespace(diffuse)
     sat_px = xp.amax(measured, axis=-1) >= _SATURATED       # a channel clipped at all four angles
-    if not bool(sat_px.any()):
-        return diffuse
+    n_sat = int(sat_px.sum())
+    stats = {"clipped_pixels": n_sat, "clipped_filled": 0, "clipped_as_measured": n_sat}
+    if n_sat == 0:
+        return diffuse, stats
     sat_h = xp.to_numpy(sat_px)
     spec_h = xp.to_numpy(spec)
+    dif_h = xp.to_numpy(diffuse).astype(np.float32)
+    mea_h = xp.to_numpy(measured).astype(np.float32)
+    g_h = np.asarray(xp.to_numpy(g), np.float64)
     n_cc, lab = cv2.connectedComponents(sat_h.astype(np.uint8), connectivity=8)
     lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
     ring = (lab_d > 0) & ~sat_h
-    hits = np.bincount(lab_d[ring], weights=spec_h[ring].astype(np.float64), minlength=n_cc)
-    tot = np.bincount(lab_d[ring], minlength=n_cc)
-    # how far each region is a highlight: a ramp of its border's polarized share over
-    # _RING_SHARE +- _RING_RAMP / 2, not a switch (the share of a clipped ear moved across 0.3 between
-    # two noise draws and its whole diffuse jumped by 0.5; docs/algorithm.md, tenth round)
-    weight = np.clip((hits / np.maximum(tot, 1) - _RING_SHARE) / _RING_RAMP + 0.5, 0.0, 1.0)
+    lw = np.ones(sat_h.shape) if light is None else xp.to_numpy(light).astype(np.float64)
+    hits = np.bincount(lab_d[ring], weights=spec_h[ring].astype(np.float64) * lw[ring], minlength=n_cc)
+    tot = np.bincount(lab_d[ring], weights=lw[ring], minlength=n_cc)
+    weight = np.clip((hits / np.maximum(tot, 1e-12) - _RING_SHARE) / _RING_RAMP + 0.5, 0.0, 1.0)
     weight[0] = 0.0
-    w_px = weight[lab]
-    sat_h = w_px > 0
-    if not 0 < int(sat_h.sum()) < sat_h.size // 2:
-        return diffuse
-    # the multiple t of the illuminant's colour (either sign) that brings the pixel nearest to
-    # its neighbours' diffuse (least squares over the channels), within 0 <= diffuse <= I
-    fill = xp.asarray(inpaint(xp.to_numpy(diffuse), sat_h), like=diffuse)
-    wpx = xp.asarray(w_px.astype(np.float32), like=diffuse)[..., None]
-    t = ((diffuse - fill) @ g) / float(g @ g)
-    return diffuse + wpx * (xp.clip(diffuse - t[..., None] * g, 0.0, ic) - diffuse)
+    out = np.where(sat_h[..., None], mea_h, dif_h)           # unfilled clipped pixels: as measured
+    stats_filled = 0
+    boxes = cv2.connectedComponentsWithStats(sat_h.astype(np.uint8), connectivity=8)[2]
+    h, w = sat_h.shape
+    for k in np.flatnonzero(weight > 0):
+        x0, y0, bw, bh, area = (int(v) for v in boxes[k])
+        r = max(4, int(np.ceil(np.sqrt(area / np.pi))))      # the band: as wide as the region's radius
+        ya, yb, xa, xb = max(y0 - r - 2, 0), min(y0 + bh + r + 2, h), max(x0 - r - 2, 0), min(x0 + bw + r + 2, w)
+        reg = lab[ya:yb, xa:xb] == k
+        band = (cv2.dilate(reg.astype(np.uint8), np.ones((2 * r + 5, 2 * r + 5), np.uint8)) > 0) & ~sat_h[ya:yb, xa:xb]
+        px = dif_h[ya:yb, xa:xb][band]
+        colour, spread, body = _material_colour(px, g_h)
+        wk = weight[k] * float(np.clip(2.0 - spread / _ONE_MATERIAL, 0.0, 1.0))
+        if wk <= 0:
+            continue
+        # the intensity under the region: interpolated from the border's body-colour pixels only (the
+        # others still hold some of the highlight's specular light)
+        known = np.zeros(band.shape, np.float32)
+        known[band] = body
+        lum = smooth_fill(dif_h[ya:yb, xa:xb].sum(axis=-1, keepdims=True), reg, known)[..., 0]
+        fill = np.clip(lum[reg][:, None] * colour[None], 0.0, mea_h[ya:yb, xa:xb][reg])
+        sub = out[ya:yb, xa:xb]
+        sub[reg] = wk * fill + (1.0 - wk) * mea_h[ya:yb, xa:xb][reg]
+        stats_filled += int(reg.sum())
+    stats["clipped_filled"] = stats_filled
+    stats["clipped_as_measured"] = n_sat - stats["clipped_filled"]
+    return xp.asarray(out, like=diffuse), stats

@@ -103,9 +103,10 @@ def register(name: str, *, kind: str, mono: bool = False, reference: str = "",
     return deco
 
 
-#: The method ``separate`` runs when none is named, per input form (see :func:`input_form`):
-#: the best polcam has for that form (docs/benchmarks.md backs each choice).
-_DEFAULTS = {"stack": "tensor", "mono-stack": "polarized-residual", "image": "yang10"}
+#: The method ``separate`` runs when none is named, per input form (see :func:`input_form`).
+#: Stacks: the one the default-method rule picks (docs/benchmarks.md, "Default method rule";
+#: polcam.bench.default_rule) from the recorded table tests/separation/default_rule_table.json.
+_DEFAULTS = {"stack": "imin", "mono-stack": "imin", "image": "yang10"}
 
 
 def default_method(form: str) -> str:

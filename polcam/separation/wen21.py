@@ -37,13 +37,16 @@ removes the unpolarized share of the specular light that ``imin`` leaves in.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 
 from polcam.errors import MethodError
+from polcam.parallel import default_workers
 from polcam.separation._registry import register
-from polcam.polarimetry import fit_sinusoid
+from polcam.separation._rpca import RPCAResult, _rpca_direction_t, rpca_ialm
+from polcam.polarimetry import Sinusoid, fit_sinusoid
 
 __all__ = [
     "REFERENCE",
@@ -64,6 +67,8 @@ REFERENCE = (
 # then every pixel goes to its nearest centre.
 _KMEANS_FIT_MAX = 20000
 _KMEANS_MAX_ITER = 100
+_KMEANS_BLOCK = 1 << 15  # points scored at once
+_THREADED_MIN = 1 << 16  # pixels from which the clusters are solved on threads
 
 
 def polarization_chromaticity(ic: np.ndarray, isv: np.ndarray) -> np.ndarray:
@@ -91,11 +96,22 @@ def polarization_chromaticity(ic: np.ndarray, isv: np.ndarray) -> np.ndarray:
             f"Ic of shape {ic.shape} and Isv of shape {isv.shape}: "
             "expected two equal (..., 3) arrays"
         )
-    raw_d = np.maximum(ic - 2.0 * isv, 0.0)
-    imin_bar = float(np.maximum(ic, 0.0).min(axis=-1).mean()) if ic.size else 0.0
-    den = raw_d.sum(axis=-1, keepdims=True) + imin_bar
+    raw_d = np.multiply(isv, 2.0)
+    np.subtract(ic, raw_d, out=raw_d)
+    np.maximum(raw_d, 0.0, out=raw_d)
+    if not ic.size:
+        return raw_d
+    # channel by channel rather than reductions along the short last axis (same sums, faster)
+    c = np.maximum(ic, 0.0)
+    imin_bar = float(np.minimum(np.minimum(c[..., 0], c[..., 1]), c[..., 2]).mean())
+    den = np.add(raw_d[..., 0], raw_d[..., 1])
+    den += raw_d[..., 2]
+    den += imin_bar
     ok = den > 0
-    return np.where(ok, raw_d / np.where(ok, den, 1.0), 0.0)
+    if ok.all():
+        raw_d /= den[..., None]
+        return raw_d
+    return np.where(ok[..., None], raw_d / np.where(ok, den, 1.0)[..., None], 0.0)
 
 
 def polarization_illuminant(isv: np.ndarray, *, floor: float = 0.05) -> np.ndarray:
@@ -172,9 +188,17 @@ def kmeans(x: np.ndarray, k: int, *, rng: np.random.Generator,
 
     def nearest(pts: np.ndarray, c: np.ndarray) -> np.ndarray:
         # |p - c|^2 = |p|^2 - 2 p.c + |c|^2; |p|^2 does not change the argmin.
-        # (k, n) scores from the transposed, contiguous points: the fast layout.
-        pts_t = np.ascontiguousarray(pts.T)
-        return np.argmin((c * c).sum(axis=1)[:, None] - 2.0 * (c @ pts_t), axis=0)
+        # (k, n) scores from the transposed, contiguous points: the fast layout;
+        # in blocks of points, so the scores stay in cache.
+        cc = (c * c).sum(axis=1)[:, None]
+        out = np.empty(pts.shape[0], dtype=np.int64)
+        for a in range(0, pts.shape[0], _KMEANS_BLOCK):
+            pts_t = np.ascontiguousarray(pts[a:a + _KMEANS_BLOCK].T)
+            scores = c @ pts_t
+            scores *= -2.0
+            scores += cc
+            out[a:a + _KMEANS_BLOCK] = np.argmin(scores, axis=0)
+        return out
 
     for _ in range(max_iter):
         labels = nearest(fit, centers)
@@ -191,166 +215,6 @@ def kmeans(x: np.ndarray, k: int, *, rng: np.random.Generator,
     remap = np.zeros(len(centers), dtype=np.int64)
     remap[used] = np.arange(len(used))
     return remap[labels], centers[used]
-
-
-def _svt(x: np.ndarray, tau: float) -> np.ndarray:
-    """Singular value thresholding ``U max(s - tau, 0) V^T`` of a 2-D matrix.
-
-    Through the eigen-decomposition of the small Gram matrix: for the 3-column
-    pixel matrices here that costs O(9 n) instead of a full SVD.  Fastest for
-    a C-contiguous wide matrix (rows <= columns), the layout rpca_ialm uses.
-    """
-    wide = x.shape[0] <= x.shape[1]
-    w, v = np.linalg.eigh(x @ x.T if wide else x.T @ x)
-    s = np.sqrt(np.maximum(w, 0.0))
-    keep = s > tau
-    f = np.zeros_like(s)
-    f[keep] = (s[keep] - tau) / s[keep]
-    proj = (v * f) @ v.T
-    return proj @ x if wide else x @ proj
-
-
-class RPCAResult(NamedTuple):
-    """Result of :func:`rpca_ialm`: ``m ~ low_rank + sparse``."""
-
-    low_rank: np.ndarray
-    sparse: np.ndarray
-    iterations: int
-    converged: bool
-
-
-def rpca_ialm(m: np.ndarray, *, lam: float | None = None,
-              lower: np.ndarray | None = None, upper: np.ndarray | None = None,
-              direction: np.ndarray | None = None,
-              prior: np.ndarray | None = None, beta: float = 0.0,
-              tol: float = 1e-7, max_iter: int = 500, rho: float = 1.5) -> RPCAResult:
-    """Robust PCA by the inexact augmented Lagrange multiplier method.
-
-    Solves ::
-
-        min_{L,S} ||L||_* + lam ||S||_1 + beta/2 ||S - prior||_F^2
-        s.t. m = L + S,  lower <= S <= upper,  rows of S in {s g : s >= 0}
-
-    (the last constraint only when ``direction`` g is given) by Lin, Chen & Ma,
-    "The augmented Lagrange multiplier method for exact recovery of corrupted
-    low-rank matrices" (2010), Algorithm 5: ``Y0 = m / J(m)`` with
-    ``J(m) = max(||m||_2, ||m||_inf / lam)`` and ``mu0 = 1.25 / ||m||_2`` as there;
-    ``mu <- min(rho mu, 1e7 mu0)`` (polcam's cap); each iteration takes the singular value
-    thresholding step for ``L`` and then the closed-form proximal step for
-    ``S`` (soft thresholding, or its one-dimensional version along ``g``,
-    then the box, which is exact for these separable convex terms).
-    Without bounds, direction and prior this is the plain RPCA of that paper.
-
-    Parameters
-    ----------
-    m
-        (n1, n2) float matrix.
-    lam
-        Weight of the l1 term; default ``1 / sqrt(max(n1, n2))`` (Candes, Li,
-        Ma & Wright 2011).
-    lower, upper
-        (n1, n2) bounds on ``S`` (broadcastable), or None.
-    direction
-        (n2,) positive vector g: every row of ``S`` is ``s g`` with ``s >= 0``;
-        then ``||S||_1 = s sum(g)`` and the bounds apply to ``s g``.
-    prior, beta
-        (n1, n2) target of the quadratic term and its weight (>= 0).
-    tol
-        Stop when ``||m - L - S||_F / ||m||_F < tol``.
-    max_iter
-        Iteration limit.
-    rho
-        Growth factor of the penalty ``mu`` (> 1).
-
-    Returns
-    -------
-    RPCAResult
-        ``low_rank`` and ``sparse`` (n1, n2) float64 (``sparse`` within the
-        bounds), the iteration count and whether ``tol`` was reached.
-    """
-    m = np.asarray(m, dtype=np.float64)
-    if m.ndim != 2:
-        raise MethodError(f"rpca_ialm: matrix of shape {m.shape}: expected 2-D")
-    n1, n2 = m.shape
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise MethodError(f"rpca_ialm: max_iter={max_iter!r}: expected an integer >= 1")
-    if not (np.isfinite(beta) and beta >= 0 and np.isfinite(rho) and rho > 1):
-        raise MethodError(f"rpca_ialm: beta={beta!r}, rho={rho!r}: expected beta >= 0 and rho > 1")
-    if lam is None:
-        lam = 1.0 / np.sqrt(max(n1, n2, 1))
-    peak = float(np.abs(m).max()) if m.size else 0.0
-    if not peak > 0:
-        z = np.zeros_like(m)
-        return RPCAResult(z, z.copy(), 0, True)
-    # The problem is homogeneous: solve it for m / peak (beta scales by peak) so
-    # that tiny (even subnormal) or large inputs cannot overflow mu or 1 / mu.
-    beta = float(beta) * peak
-    g = None
-    if direction is not None:
-        g = np.asarray(direction, dtype=np.float64).reshape(-1)
-        if g.shape != (n2,) or not np.all(g > 0):
-            raise MethodError(f"rpca_ialm: direction {g}: expected {n2} positive values")
-    # Work on a C-contiguous wide matrix (rows <= columns): the products with
-    # the small side are then fast.  Along ``ch`` lie the n2 entries of one row of m.
-    flip = n1 > n2
-    ch = 0 if flip else 1
-
-    def orient(a: Any) -> np.ndarray:
-        b = np.broadcast_to(np.asarray(a, dtype=np.float64) / peak, (n1, n2))
-        return np.ascontiguousarray(b.T if flip else b)
-
-    x = orient(m)
-    norm_f = float(np.linalg.norm(x))
-    lo = None if lower is None else orient(lower)
-    hi = None if upper is None else orient(upper)
-    p = None if prior is None else orient(prior)
-    if g is not None:
-        gg = float(g @ g)
-        gb = g[:, None] if flip else g[None, :]
-        # bounds on the row scale s: s g >= lower, s g <= upper, s >= 0
-        s_hi = (np.full(n1, np.inf) if hi is None else (hi / gb).min(axis=ch))
-        s_hi = np.maximum(s_hi, 0.0)
-        s_lo = np.zeros(n1) if lo is None else np.maximum((lo / gb).max(axis=ch), 0.0)
-        s_lo = np.minimum(s_lo, s_hi)
-    norm2 = float(np.sqrt(max(np.linalg.eigvalsh(x @ x.T)[-1], 0.0)))
-    y = x / max(norm2, float(np.abs(x).max()) / lam)
-    mu = 1.25 / norm2
-    mu_max = mu * 1e7
-    s = np.zeros_like(x)
-    converged = False
-    it = 0
-    for it in range(1, max_iter + 1):
-        inv = 1.0 / mu
-        yi = inv * y
-        low = x - s
-        low += yi
-        low = _svt(low, inv)
-        d = x - low
-        v = d + yi  # S minimises its terms + mu/2 |S - v|^2
-        if beta > 0:  # ... + beta/2 |S - p|^2: the target becomes a weighted mean
-            v *= mu / (mu + beta)
-            if p is not None:
-                v += (beta / (mu + beta)) * p
-        t = lam / (mu + beta)
-        if g is None:
-            s = np.sign(v) * np.maximum(np.abs(v) - t, 0.0)
-            if lo is not None or hi is not None:
-                s = np.clip(s, lo, hi)
-        else:
-            # argmin_s lam s sum(g) + (mu + beta)/2 |s g - v|^2 = (g.v - t sum(g)) / g.g, boxed
-            num = g @ v if flip else v @ g
-            sc = np.clip((num - t * g.sum()) / gg, s_lo, s_hi)
-            s = gb * (sc[None, :] if flip else sc[:, None])
-        r = d
-        r -= s  # the constraint's residual m - L - S
-        y += mu * r
-        mu = min(mu * rho, mu_max)
-        if np.linalg.norm(r) / norm_f < tol:
-            converged = True
-            break
-    if flip:
-        low, s = low.T, s.T
-    return RPCAResult(low * peak, s * peak, it, converged)
 
 
 def _check_options(clusters: Any, seed: Any, lam_scale: Any, beta: Any, illuminant: Any,
@@ -384,11 +248,22 @@ def _check_options(clusters: Any, seed: Any, lam_scale: Any, beta: Any, illumina
             )
 
 
+def _fit(arr: np.ndarray) -> Sinusoid:
+    """The float64 sinusoid fit of the stack with NaN as 0, +inf as 1 and negatives as 0."""
+    if arr.dtype in (np.float32, np.float64):
+        lo, hi = (float(arr.min()), float(arr.max())) if arr.size else (0.0, 0.0)
+        if lo >= 0.0 and np.isfinite(hi):  # clean (what separate passes): no copy of the stack
+            return fit_sinusoid(arr, dtype=np.float64)
+    arr = np.clip(np.nan_to_num(arr.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0), 0.0, None)
+    return fit_sinusoid(arr)
+
+
 @register("wen21", kind="stack", reference=REFERENCE)
 def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
                    lam_scale: float = 1.0, beta: float = 1.0,
                    illuminant: str | tuple[float, float, float] = "polarization",
-                   tol: float = 1e-6, max_iter: int = 500) -> tuple[np.ndarray, dict[str, Any]]:
+                   tol: float = 1e-6, max_iter: int = 500,
+                   fit: Sinusoid | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Diffuse layer by polarization-chromaticity clustering and constrained RPCA.
 
     Parameters
@@ -412,6 +287,12 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
         an (R, G, B) triple of positive numbers.
     tol, max_iter
         Stopping rule of each cluster's RPCA (relative residual, iterations).
+    fit
+        The sinusoid fit of ``stack`` when the caller has it (``ic`` and ``isv``
+        (H, W, 3), float64 for identical results:
+        ``polcam.polarimetry.fit_sinusoid(stack, dtype=numpy.float64)``; the
+        pipeline computes it in the pass that makes a frame's maps); None fits
+        it here.
 
     Returns
     -------
@@ -435,18 +316,23 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
             "stack (angles 0, 45, 90, 135 degrees)"
         )
     _check_options(clusters, seed, lam_scale, beta, illuminant, tol, max_iter)
-    arr = np.clip(np.nan_to_num(arr.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0), 0.0, None)
     _, h, w, _ = arr.shape
-    fit = fit_sinusoid(arr)
+    if fit is None:
+        fit = _fit(arr)
+    elif not (np.shape(fit.ic) == np.shape(fit.isv) == (h, w, 3)):
+        raise MethodError(f"wen21: fit of shapes {np.shape(fit.ic)}, {np.shape(fit.isv)}: expected "
+                          f"Ic and Isv of the stack's ({h}, {w}, 3)")
+    fit = Sinusoid(np.asarray(fit.ic, dtype=np.float64), np.asarray(fit.isv, dtype=np.float64), fit.phi)
     ic = np.maximum(fit.ic, 0.0).reshape(-1, 3)
-    isv = np.minimum(fit.isv, fit.ic).clip(0.0).reshape(-1, 3)
+    isv = np.minimum(fit.isv, fit.ic)
+    isv = np.maximum(isv, 0.0, out=isv).reshape(-1, 3)
     peak = float(ic.max()) if ic.size else 0.0
     if not peak > 0:  # all black: no light, no specular
         info0 = {"iterations": 0, "converged": True, "clusters": 0, "illuminant": [1.0, 1.0, 1.0]}
         return np.zeros((h, w, 3)), info0
     # The method is invariant to exposure; work on [0, 1] whatever the input's level.
-    ic = ic / peak
-    isv = isv / peak
+    ic /= peak
+    isv /= peak
 
     if isinstance(illuminant, str):
         gamma = polarization_illuminant(isv) if illuminant == "polarization" else np.ones(3)
@@ -458,24 +344,52 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
     labels, _ = kmeans(chro, int(clusters), rng=np.random.default_rng(int(seed)))
     raw_s = np.minimum(2.0 * isv, ic)
     scale = float(ic.mean())
-    diffuse = np.zeros_like(ic)
+    diffuse = np.empty_like(ic)
     iterations = 0
     converged = True
     order = np.argsort(labels, kind="stable")
     bounds = np.searchsorted(labels[order], np.arange(labels.max() + 2 if labels.size else 1))
-    for k in range(len(bounds) - 1):
-        idx = order[bounds[k]:bounds[k + 1]]
-        if idx.size == 0:
-            continue
-        m = ic[idx]
-        lam = float(lam_scale) / np.sqrt(max(idx.size, 3))
-        b = float(beta) * lam / scale
-        res = rpca_ialm(m, lam=lam, lower=isv[idx], upper=m, direction=gamma,
-                        prior=raw_s[idx], beta=b, tol=float(tol), max_iter=int(max_iter))
-        diffuse[idx] = m - res.sparse
-        iterations = max(iterations, res.iterations)
-        converged = converged and res.converged
-    diffuse = np.clip(diffuse, 0.0, np.maximum(ic - isv, 0.0)) * peak
+
+    # pixels as columns, sorted by cluster: each cluster's matrices are contiguous column
+    # ranges, gathered once for all
+    ic_t, isv_t, raw_t = (np.take(a.T, order, axis=1) for a in (ic, isv, raw_s))
+    diffuse_t = np.empty_like(ic_t)
+
+    def cluster(k: int) -> tuple[int, bool]:
+        a, b = int(bounds[k]), int(bounds[k + 1])
+        if b == a:
+            return 0, True
+        lam = float(lam_scale) / np.sqrt(max(b - a, 3))
+        w = float(beta) * lam / scale
+        if b - a > 3:  # a wide matrix: the transposed fast path of rpca_ialm
+            m = ic_t[:, a:b]
+            sp, its, conv = _rpca_direction_t(m, isv_t[:, a:b], raw_t[:, a:b], gamma,
+                                              lam=lam, beta=w, tol=float(tol), max_iter=int(max_iter))
+            np.subtract(m, sp, out=diffuse_t[:, a:b])
+            return its, conv
+        m = ic_t[:, a:b].T
+        res = rpca_ialm(m, lam=lam, lower=isv_t[:, a:b].T, upper=m, direction=gamma,
+                        prior=raw_t[:, a:b].T, beta=w, tol=float(tol), max_iter=int(max_iter))
+        diffuse_t[:, a:b] = (m - res.sparse).T
+        return res.iterations, res.converged
+
+    # clusters are independent: largest first on a few threads (numpy releases the GIL)
+    ks = sorted(range(len(bounds) - 1), key=lambda k: bounds[k] - bounds[k + 1])
+    threads = min(default_workers(4), len(ks)) if ic.shape[0] >= _THREADED_MIN else 1
+    if threads > 1:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            results = list(pool.map(cluster, ks))
+    else:
+        results = [cluster(k) for k in ks]
+    for its, conv in results:
+        iterations = max(iterations, its)
+        converged = converged and conv
+    diffuse[order] = diffuse_t.T
+    top = np.subtract(ic, isv)
+    np.maximum(top, 0.0, out=top)
+    np.maximum(diffuse, 0.0, out=diffuse)  # clip to [0, max(Ic - Isv, 0)]
+    np.minimum(diffuse, top, out=diffuse)
+    diffuse *= peak
     info = {
         "iterations": iterations,
         "converged": converged,

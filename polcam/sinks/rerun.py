@@ -20,6 +20,11 @@ meaning whoever wrote it:
                                 class image: class ``1 + round(AoLP in degrees) mod 180``,
                                 hue ``2 x`` AoLP, so 0 and 180 degrees meet (cyclic);
                                 class 0 where dark, as DoLP
+``/polarization/aolp_dolp``     AoLP as hue with DoLP as value (HSV: hue ``2 x``
+                                AoLP, full saturation, value
+                                ``min(1, DoLP / 0.25)`` in 32 steps) through a uint16
+                                class image: class ``1 + round(AoLP in degrees)
+                                mod 180 + 180 level``; class 0 where dark
 ``/layers/diffuse``             diffuse layer, on the scale of one polarization image:
                                 value ``round(255 diffuse)``
 ``/layers/specular``            specular layer, on the same scale
@@ -65,6 +70,8 @@ import numpy as np
 from polcam.sinks.rerun_web import LOOPBACK, WebServer, is_loopback
 
 __all__ = [
+    "AOLP_DOLP_FULL",
+    "AOLP_DOLP_STEPS",
     "AOLP_LEVELS",
     "AOLP_TIE_BREAK",
     "DARK_CODE",
@@ -75,6 +82,7 @@ __all__ = [
     "DOLP_LEVELS",
     "ENTITIES",
     "RerunSink",
+    "aolp_dolp_ids",
     "aolp_ids",
     "blueprint",
     "dolp_ids",
@@ -92,6 +100,7 @@ ENTITIES: dict[str, str] = {
     "s0": "/polarization/s0",
     "dolp": "/polarization/dolp",
     "aolp": "/polarization/aolp",
+    "aolp_dolp": "/polarization/aolp_dolp",
     "diffuse": "/layers/diffuse",
     "specular": "/layers/specular",
     "fps": "/stats/fps",
@@ -169,15 +178,43 @@ def aolp_ids(aolp: np.ndarray) -> np.ndarray:
     return cv2.add(deg, 1)
 
 
+#: DoLP at which the AoLP x DoLP map reaches full value: diffuse surfaces polarize weakly (the real
+#: fixture's median DoLP is 0.07), so value = DoLP itself would leave them near black.
+AOLP_DOLP_FULL = 0.25
+#: Value steps of the AoLP x DoLP map: value ``level / (AOLP_DOLP_STEPS - 1)``.
+AOLP_DOLP_STEPS = 32
+
+
+def aolp_dolp_ids(aolp: np.ndarray, dolp: np.ndarray) -> np.ndarray:
+    """AoLP as hue, DoLP as value: class ids ``aolp_ids(aolp) + 180 level`` (uint16, 1..5760).
+
+    Parameters
+    ----------
+    aolp
+        (H, W) AoLP in radians, [0, pi).
+    dolp
+        (H, W) DoLP in [0, 1]; ``level = round(31 min(1, DoLP / AOLP_DOLP_FULL))``.
+    """
+    d = np.ascontiguousarray(dolp, dtype=np.float32)
+    level = cv2.addWeighted(d, (AOLP_DOLP_STEPS - 1) / AOLP_DOLP_FULL, d, 0.0, TIE_BREAK, dtype=cv2.CV_8U)
+    level = np.minimum(level, AOLP_DOLP_STEPS - 1).astype(np.uint16)
+    return aolp_ids(aolp).astype(np.uint16) + np.uint16(AOLP_LEVELS) * level
+
+
 def palettes() -> dict[str, list[tuple[int, str, tuple[int, int, int]]]]:
-    """(class id, label, RGB colour) of the DoLP and AoLP class maps."""
+    """(class id, label, RGB colour) of the DoLP, AoLP and AoLP x DoLP class maps."""
     vir = _viridis_rgb()
     hues = _hue_rgb(AOLP_LEVELS)
     dolp = [(i + 1, f"DoLP {i / (DOLP_LEVELS - 1):.3f}",
              tuple(int(c) for c in vir[round(i * 255 / (DOLP_LEVELS - 1))])) for i in range(DOLP_LEVELS)]
     aolp = [(i + 1, f"AoLP {i} deg", tuple(int(c) for c in hues[i])) for i in range(AOLP_LEVELS)]
+    top = AOLP_DOLP_STEPS - 1
+    both = [(1 + i + AOLP_LEVELS * k,
+             f"AoLP {i} deg, DoLP {'>= ' if k == top else ''}{k * AOLP_DOLP_FULL / top:.3f}",
+             tuple(int(round(int(c) * k / top)) for c in hues[i]))
+            for k in range(AOLP_DOLP_STEPS) for i in range(AOLP_LEVELS)]
     dark = (0, f"too dark (S0 code < {DARK_CODE})", (0, 0, 0))
-    return {"dolp": [dark, *dolp], "aolp": [dark, *aolp]}  # type: ignore[dict-item]
+    return {"dolp": [dark, *dolp], "aolp": [dark, *aolp], "aolp_dolp": [dark, *both]}  # type: ignore[dict-item]
 
 
 #: DoLP and AoLP are not shown (class 0, black) where the S0 code is below this, i.e. S0 < 2.5 / 127.5
@@ -255,13 +292,15 @@ def luminance_orientation(s0: np.ndarray, dolp: np.ndarray, aolp: np.ndarray) ->
     return np.clip(d, 0.0, 1.0).astype(np.float32), a.astype(np.float32)
 
 
-def blueprint() -> Any:
+def blueprint(*, live: bool = True) -> Any:
     """The one layout of capture, process and view.
 
-    Raw, S0 and DoLP on the first row, AoLP, diffuse and specular on the
-    second (all on the ``frame`` timeline), and below them the capture
-    statistics as time series: frame rate, dropped and incomplete frames,
-    separation time.
+    Raw, S0 and DoLP on the first row; AoLP, diffuse and specular on the
+    second (all on the ``frame`` timeline), AoLP as two tabs: AoLP x DoLP
+    (hue and value, shown first) and AoLP alone (hue).  With ``live`` (a
+    capture), the capture statistics below them as time series: frame rate,
+    dropped and incomplete frames, separation time; a batch or a folder has
+    none, so it gets no empty plots.
     """
     import rerun.blueprint as rrb
 
@@ -271,18 +310,42 @@ def blueprint() -> Any:
     def plot(roles: tuple[str, ...], name: str) -> Any:
         return rrb.TimeSeriesView(origin="/stats", contents=[ENTITIES[r] for r in roles], name=name)
 
+    aolp = rrb.Tabs(view("aolp_dolp", "AoLP x DoLP (hue, value)"), view("aolp", "AoLP (hue, 0..180 deg)"),
+                    active_tab=0, name="AoLP")
+    rows = [rrb.Horizontal(view("raw", "raw"), view("s0", "S0"), view("dolp", "DoLP (viridis, 0..1)")),
+            rrb.Horizontal(aolp, view("diffuse", "diffuse"), view("specular", "specular"))]
+    if live:
+        rows.append(rrb.Horizontal(plot(("fps",), "frames per second"),
+                                   plot(("dropped", "incomplete"), "dropped, incomplete"),
+                                   plot(("separation_seconds",), "separation seconds")))
     return rrb.Blueprint(
-        rrb.Vertical(
-            rrb.Horizontal(view("raw", "raw"), view("s0", "S0"), view("dolp", "DoLP (viridis, 0..1)")),
-            rrb.Horizontal(view("aolp", "AoLP (hue, 0..180 deg)"), view("diffuse", "diffuse"),
-                           view("specular", "specular")),
-            rrb.Horizontal(plot(("fps",), "frames per second"), plot(("dropped", "incomplete"), "dropped, incomplete"),
-                           plot(("separation_seconds",), "separation seconds")),
-            row_shares=[4, 4, 1.5],
-        ),
+        rrb.Vertical(*rows, row_shares=[4, 4, 1.5][:len(rows)]),
         rrb.TimePanel(timeline="frame", state="collapsed"),
         collapse_panels=True,
     )
+
+
+def _raw_source(folder: Path, meta: dict[str, Any]) -> Path | None:
+    """The raw frame a process frame folder came from (``meta.json``'s ``input``), or None.
+
+    ``input`` is absolute; a relative one (relative to where ``process`` ran)
+    is looked for from the current folder, then from each folder above the
+    frame folder, and taken only when its SHA-256 is ``input_sha256``.
+    """
+    src = meta.get("input")
+    if not isinstance(src, str) or not src:
+        return None
+    given = Path(src)
+    if given.is_absolute():
+        return given if given.is_file() else None
+    from polcam._hashing import sha256_file
+
+    want = meta.get("input_sha256")
+    for base in (Path.cwd(), *folder.resolve().parents):
+        candidate = base / given
+        if candidate.is_file() and (want is None or sha256_file(candidate) == want):
+            return candidate
+    return None
 
 
 class RerunSink:
@@ -304,6 +367,9 @@ class RerunSink:
         Size factor of the logged maps (0 < view_scale <= 1).
     bind, port, memory_limit
         ``serve``: see :class:`WebServer`.
+    live
+        A live capture: the layout shows the capture statistics
+        (:func:`blueprint`); False for a batch or a folder.
 
     Notes
     -----
@@ -314,7 +380,7 @@ class RerunSink:
 
     def __init__(self, target: str | Path, *, application_id: str = "polcam",
                  recording_id: str | None = None, raw_every: int = 10, view_scale: float = 0.5,
-                 bind: str = LOOPBACK, port: int = 9090, memory_limit: str = "1GiB") -> None:
+                 bind: str = LOOPBACK, port: int = 9090, memory_limit: str = "1GiB", live: bool = True) -> None:
         import rerun as rr
 
         if int(raw_every) < 1:
@@ -329,7 +395,7 @@ class RerunSink:
         self.target = str(target)
         self.server: WebServer | None = None
         rec = rr.RecordingStream(application_id, recording_id=recording_id)
-        bp = blueprint()
+        bp = blueprint(live=live)
         if self.target == "spawn":  # our own viewer process: the SDK's spawn listens on every interface
             from polcam.sinks.rerun_web import native_viewer
 
@@ -395,11 +461,14 @@ class RerunSink:
         v = self.view_scale
         s0_img = _resize(s0_u8(s0, scale=scale), v)
         dolp_img = _mask_dark(_resize(dolp_ids(dolp), v), s0_img)
-        aolp_img = _mask_dark(_resize(aolp_ids(aolp), v, nearest=True), s0_img)
+        aolp_small = _resize(np.ascontiguousarray(aolp, dtype=np.float32), v, nearest=True)
+        aolp_img = _mask_dark(aolp_ids(aolp_small), s0_img)
+        dolp_small = _resize(np.ascontiguousarray(dolp, dtype=np.float32), v)  # area mean: DoLP is linear
+        both_img = _mask_dark(aolp_dolp_ids(aolp_small, dolp_small), s0_img)
         with self._lock:
             self._time(index, timestamp_ns)
             self._image("s0", s0_img)
-            for role, ids in (("dolp", dolp_img), ("aolp", aolp_img)):
+            for role, ids in (("dolp", dolp_img), ("aolp", aolp_img), ("aolp_dolp", both_img)):
                 self._rec.log(ENTITIES[role], self._rr.SegmentationImage(ids, opacity=1.0))
                 self.logged[role] += 1
 
@@ -458,8 +527,8 @@ class RerunSink:
 
         Reads ``s0``, ``dolp``, ``aolp``, ``diffuse``, ``specular`` (``.exr``
         or ``.tif``) and ``meta.json``; the raw frame named there (``input``)
-        is logged too when it still exists, and its ``timestamp_ns`` as the
-        device time.
+        is logged too when it still exists (:func:`_raw_source`), and its
+        ``timestamp_ns`` as the device time.
 
         Raises
         ------
@@ -490,8 +559,8 @@ class RerunSink:
             pass
         ts = (meta.get("frame") or {}).get("timestamp_ns")
         frame = None
-        src = meta.get("input")
-        if src and Path(src).is_file():
+        src = _raw_source(folder, meta)
+        if src is not None:
             try:
                 frame = read_frame(src, layout=meta.get("layout"))
             except (ValueError, OSError):

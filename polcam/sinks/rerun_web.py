@@ -20,7 +20,8 @@ import time
 import urllib.parse
 from pathlib import Path
 
-__all__ = ["LOOPBACK", "WebServer", "has_display", "is_loopback", "native_viewer", "rerun_executable"]
+__all__ = ["LOOPBACK", "WebServer", "check_port_free", "has_display", "is_loopback", "listening_owner",
+           "native_viewer", "rerun_executable"]
 
 
 #: The default address of the web viewer: this machine only.
@@ -72,6 +73,78 @@ def _free_ports(n: int) -> list[int]:
             s.close()
 
 
+def check_port_free(bind: str, port: int) -> None:
+    """Refuse a port something already listens on, before any server starts.
+
+    Binds a probe socket to (``bind``, ``port``) with ``SO_REUSEADDR`` (as a
+    server does): that fails only when the port is held, e.g. by another
+    polcam view or Rerun viewer.  An address this machine does not have is
+    left to the server's own error.
+
+    Raises
+    ------
+    PolcamError
+        The port is in use (named, with what to do).
+    """
+    import errno
+
+    from polcam.errors import PolcamError
+
+    family = socket.AF_INET6 if ":" in bind else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind((bind, int(port)))
+        except OSError as exc:
+            if exc.errno != errno.EADDRINUSE:
+                return
+            raise PolcamError(f"port {port} is in use: something is already listening on {bind}:{port} (another "
+                              "polcam view or Rerun viewer?); choose another --port (the data use port + 1), "
+                              "or --port 0 for free ones") from None
+
+
+def _listening_inodes(port: int) -> set[int] | None:
+    """Inodes of the TCP sockets listening on ``port`` (Linux ``/proc/net/tcp*``); None elsewhere."""
+    found: set[int] = set()
+    seen = False
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            lines = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        seen = True
+        for line in lines:
+            f = line.split()
+            if len(f) > 9 and f[3] == "0A" and int(f[1].rsplit(":", 1)[1], 16) == int(port):  # 0A: LISTEN
+                found.add(int(f[9]))
+    return found if seen else None
+
+
+def listening_owner(pid: int, port: int) -> bool | None:
+    """Whether process ``pid`` holds a socket listening on ``port``; None where that cannot be read.
+
+    Linux only: the listening sockets' inodes (``/proc/net/tcp``, ``tcp6``)
+    against the process's open files (``/proc/PID/fd``).
+    """
+    import os
+
+    inodes = _listening_inodes(port)
+    if inodes is None:
+        return None
+    targets = {f"socket:[{i}]" for i in inodes}
+    try:
+        fds = os.listdir(f"/proc/{pid}/fd")
+    except OSError:
+        return None if not Path("/proc/self/fd").is_dir() else False
+    for fd in fds:
+        try:
+            if os.readlink(f"/proc/{pid}/fd/{fd}") in targets:
+                return True
+        except OSError:
+            continue
+    return False
+
+
 def _die_with_parent() -> None:  # runs in the child between fork and exec
     import ctypes
 
@@ -88,7 +161,10 @@ class WebServer:
         opens it to every network this machine is on).
     port
         Port of the web page; the data (gRPC) port is ``port + 1``.  0 picks
-        two free ports.
+        two free ports.  A port something already listens on is refused
+        before the server starts (:func:`check_port_free`), and the server is
+        ready only once the process started here holds both ports (Linux), so
+        polcam never streams into another server that answers there.
     recordings
         ``.rrd`` files the server loads and serves.
     memory_limit
@@ -117,6 +193,9 @@ class WebServer:
         if not 0 <= int(port) <= 65534:
             raise PolcamError(f"port {port!r}: expected 0 (any free port) or 1..65534 (the data use port + 1)")
         web, grpc = _free_ports(2) if int(port) == 0 else (int(port), int(port) + 1)
+        if int(port) != 0:
+            for p in (web, grpc):
+                check_port_free(str(bind), p)
         self.bind = str(bind)
         self.port, self.grpc_port = web, grpc
         host = LOOPBACK if self.bind in ("0.0.0.0", "::", "127.0.0.1") else self.bind
@@ -163,12 +242,15 @@ class WebServer:
             for p in list(pending):
                 try:
                     socket.create_connection((self._probe, p), timeout=0.5).close()
-                    pending.discard(p)
                 except OSError:
-                    pass
+                    continue
+                # something answers: it must be the server started here, not one already there
+                if listening_owner(self._proc.pid, p) is not False:
+                    pending.discard(p)
             if pending:
                 if time.monotonic() > end:
-                    raise PolcamError(f"the Rerun web viewer did not open ports {sorted(pending)} in {timeout:.0f} s")
+                    raise PolcamError(f"the Rerun web viewer did not open ports {sorted(pending)} in {timeout:.0f} s "
+                                      "(or another program holds them: try --port)")
                 time.sleep(0.1)
         if self._proc is not None and self._proc.stderr is not None:
             # keep draining its log so the child never blocks on a full pipe

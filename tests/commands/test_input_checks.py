@@ -113,7 +113,8 @@ def test_options_are_checked_against_the_methods_that_run(plain, tmp_path):
     assert r.returncode == 2 and f"no method of this run ({mono} for mono frames) takes it" in r.stderr
     r = polcam("process", plain, "-o", out, "--layout", "imx250mzr", "--option", "bogus=1")
     assert r.returncode == 2 and f"'{mono}' takes no option 'bogus'" in r.stderr
-    assert f"'{default_method('stack')}'" not in r.stderr
+    if default_method("stack") != mono:      # the colour default does not run on mono frames
+        assert f"'{default_method('stack')}'" not in r.stderr
     assert not out.exists()
 
 

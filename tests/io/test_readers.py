@@ -16,7 +16,7 @@ import pytest
 
 from polcam.errors import FrameReadError, PixelFormatError
 from polcam.io.packing import pack
-from polcam.io.readers import RAW_EXTENSIONS, interleave_angles, read_frame
+from polcam.io.readers import RAW_EXTENSIONS, declared_size, interleave_angles, read_frame
 from polcam.mosaic import ANGLES, parse_layout
 
 REAL_PNG = Path(__import__("os").environ.get("POLCAM_SHARED_DATA", Path(__file__).resolve().parents[3] / "shared" / "data")) / "real-imx250mzr" / "fruits.png"
@@ -555,3 +555,43 @@ def test_white_not_above_black(tmp_path: Path) -> None:
     _sidecar(path, black_level=20)  # the two levels from different places
     with pytest.raises(FrameReadError, match="wb.png.*white level 10.0 is not above black level 20.0"):
         read_frame(path, white_level=10)
+
+
+def test_sidecar_size_that_contradicts_the_image_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "f.png"
+    assert cv2.imwrite(str(path), _rng().integers(0, 255, (8, 12), dtype=np.uint8))
+    _sidecar(path, layout="imx250mzr", width=2448, height=2048)
+    with pytest.raises(FrameReadError, match=r"f\.png: the sidecar f\.json gives 2448x2048 .* the image is 12x8"):
+        read_frame(path)
+    _sidecar(path, layout="imx250mzr", width=12, height=8)      # agreeing sizes are fine
+    assert read_frame(path).mosaic.shape == (8, 12)
+
+
+def test_declared_size_reads_headers_only(tmp_path: Path) -> None:
+    png = tmp_path / "a.png"
+    assert cv2.imwrite(str(png), np.zeros((6, 10), np.uint8))
+    npy = tmp_path / "b.npy"
+    np.save(npy, np.zeros((4, 14), np.uint16))
+    pgm = tmp_path / "c.pgm"
+    pgm.write_bytes(b"P5\n# comment\n11000 9000\n255\n" + bytes(16))   # truncated: the header is enough
+    raw = tmp_path / "d.raw"
+    raw.write_bytes(bytes(4))
+    _sidecar(raw, width=64, height=32)
+    assert [declared_size(p) for p in (png, npy, pgm, raw)] == [(10, 6), (14, 4), (11000, 9000), (64, 32)]
+    (tmp_path / "e.png").write_bytes(b"not an image")
+    assert declared_size(tmp_path / "e.png") is None
+
+
+def test_an_error_repeated_per_scanline_is_one_line(tmp_path: Path) -> None:
+    """A 138-byte TIFF that declares 4000x4000 16-bit pixels: one line, with the count of the rest."""
+    w = h = 4000
+    entries = [(256, 4, w), (257, 4, h), (258, 3, 16), (259, 3, 1), (262, 3, 1), (273, 4, 134),
+               (277, 3, 1), (278, 4, h), (279, 4, w * h * 2), (284, 3, 1)]
+    ifd = struct.pack("<H", len(entries)) + b"".join(
+        struct.pack("<HHII", t, k, 1, v) if k == 4 else struct.pack("<HHIHH", t, k, 1, v, 0) for t, k, v in entries)
+    path = tmp_path / "tiny.tif"
+    path.write_bytes(b"II*\x00" + struct.pack("<I", 8) + ifd + struct.pack("<I", 0) + bytes(4))
+    with pytest.raises(FrameReadError) as info:
+        read_frame(path, layout="imx250mzr")
+    msg = str(info.value)
+    assert "\n" not in msg and len(msg) < 400 and "more lines like it" in msg and msg.startswith(str(path))

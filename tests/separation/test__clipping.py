@@ -1,4 +1,4 @@
-"""Clipped samples: declipping by the polarizer identities, and the inpainting fill."""
+"""Clipped samples: declipping by the polarizer identities, and the clipped highlights' fill."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from polcam.separation._clipping import _RING_RAMP, _RING_SHARE, declipped, fill_clipped_highlights, inpaint
+from polcam.separation._clipping import _RING_RAMP, _RING_SHARE, declipped, fill_clipped_highlights, smooth_fill
 
 
 def test_declipping_rebuilds_samples_exactly():
@@ -33,8 +33,8 @@ def test_declipping_rebuilds_samples_exactly():
     np.testing.assert_array_equal(declipped(c20)[:, 0, 0, 0], c20[:, 0, 0, 0])
 
 
-def test_inpaint_fills_a_hole_from_a_smooth_surrounding():
-    # a linear ramp in x with a 20 x 20 hole: the fill follows the ramp, the rest is untouched
+def test_smooth_fill_fills_a_hole_from_a_smooth_surrounding():
+    # a linear ramp in x with a 20 x 20 hole: the fill follows the ramp, smoothly, the rest is untouched
     h, w = 60, 90
     ramp = np.tile(np.linspace(0.2, 0.8, w, dtype=np.float32), (h, 1))
     img = np.stack([ramp, 0.5 * ramp, np.full((h, w), 0.3, np.float32)], axis=-1)
@@ -42,9 +42,11 @@ def test_inpaint_fills_a_hole_from_a_smooth_surrounding():
     mask[20:40, 35:55] = True
     holed = img.copy()
     holed[mask] = 1.0
-    out = inpaint(holed, mask)
+    out = smooth_fill(holed, mask)
     assert out.shape == img.shape and out.dtype == np.float32
-    np.testing.assert_allclose(out[~mask], holed[~mask], atol=1.0 / 65535)
+    np.testing.assert_array_equal(out[~mask], holed[~mask])
+    # smooth: no step between neighbours inside the hole larger than the ramp's own over a few pixels
+    assert np.abs(np.diff(out[20:40, 35:55, 0], axis=1)).max() < 0.03
     # against the best constant fill, the mean of the hole's one-pixel border: under half its error
     ring = np.zeros((h, w), bool)
     ring[19:41, 34:56] = True
@@ -63,7 +65,7 @@ def test_clipped_region_fill_grows_with_its_polarized_border():
     h, w = 40, 40
     yy, xx = np.mgrid[:h, :w]
     disk = (yy - 20) ** 2 + (xx - 20) ** 2 <= 36
-    measured = np.where(disk[..., None], 1.0, 0.5).astype(np.float32) * np.ones(3, np.float32)
+    measured = np.where(disk[..., None], 1.0, 0.5).astype(np.float32) * np.array([1.0, 0.6, 0.4], np.float32)
     ring = (cv2.dilate(disk.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0) & ~disk
     ring_idx = np.flatnonzero(ring)
     g = np.ones(3, np.float32)
@@ -72,15 +74,33 @@ def test_clipped_region_fill_grows_with_its_polarized_border():
     for share in shares:
         spec = np.zeros(h * w, bool)
         spec[ring_idx[: int(round(share * ring_idx.size))]] = True
-        out = fill_clipped_highlights(measured.copy(), measured, measured, spec.reshape(h, w), g)
+        out, stats = fill_clipped_highlights(measured.copy(), measured, spec.reshape(h, w), g)
         assert np.array_equal(out[~disk], measured[~disk])
+        assert stats["clipped_pixels"] == disk.sum()
+        assert stats["clipped_filled"] + stats["clipped_as_measured"] == disk.sum()
         centre.append(float(out[20, 20].mean()))
+        if share == 1.0:
+            # filled with the surround's own colour (an orange material), not grey
+            np.testing.assert_allclose(out[20, 20] / out[20, 20].sum(), [0.5, 0.3, 0.2], atol=0.01)
     centre = np.array(centre)
-    assert centre[0] == pytest.approx(1.0) and centre[-1] == pytest.approx(0.5, abs=0.02)
+    assert centre[0] == pytest.approx(measured[20, 20].mean()) and centre[-1] == pytest.approx(0.5 * 2 / 3, abs=0.02)
     assert np.all(np.diff(centre) <= 1e-6)                      # more border evidence, more fill
     assert np.abs(np.diff(centre)).max() < 0.1                  # no jump (a switch moves it by 0.5)
     lo = shares < _RING_SHARE - _RING_RAMP / 2
-    assert np.all(centre[lo] == pytest.approx(1.0))             # weak evidence: left as measured
+    assert np.all(centre[lo] == pytest.approx(measured[20, 20].mean()))   # weak evidence: left as measured
+
+
+def test_clipped_region_between_two_materials_is_left_as_measured():
+    # a clipped disk bordered half by red, half by green, all of its border polarized highlight:
+    # the border does not say what is under it, so it is left as measured and counted so
+    h, w = 40, 40
+    yy, xx = np.mgrid[:h, :w]
+    disk = (yy - 20) ** 2 + (xx - 20) ** 2 <= 36
+    surround = np.where((xx < 20)[..., None], [0.6, 0.1, 0.1], [0.1, 0.6, 0.1]).astype(np.float32)
+    measured = np.where(disk[..., None], 1.0, surround).astype(np.float32)
+    out, stats = fill_clipped_highlights(measured.copy(), measured, np.ones((h, w), bool), np.ones(3, np.float32))
+    np.testing.assert_array_equal(out, measured)
+    assert stats["clipped_as_measured"] == disk.sum() and stats["clipped_filled"] == 0
 
 
 def test_declipping_on_torch_is_the_same(dev):

@@ -452,3 +452,20 @@ def _print_tables() -> None:
 
 if __name__ == "__main__":
     _print_tables()
+
+
+def test_a_given_fit_is_used_and_checked():
+    from polcam.errors import MethodError
+    from polcam.polarimetry import fit_sinusoid
+    from polcam.separation.wen21 import separate_wen21
+
+    rng = np.random.default_rng(11)
+    stack = rng.uniform(0.0, 1.0, (4, 20, 24, 3)).astype(np.float32)
+    d0, _ = separate_wen21(stack)
+    fit = fit_sinusoid(stack, dtype=np.float64)
+    d1, _ = separate_wen21(stack, fit=fit)
+    np.testing.assert_array_equal(d0, d1)
+    other = fit_sinusoid(stack[:, ::-1], dtype=np.float64)  # another image's fit changes the answer
+    assert not np.array_equal(separate_wen21(stack, fit=other)[0], d0)
+    with pytest.raises(MethodError, match=r"fit of shapes \(20, 23, 3\)"):
+        separate_wen21(stack, fit=fit_sinusoid(stack[:, :, :23], dtype=np.float64))

@@ -148,21 +148,25 @@ def test_sink_refuses_bad_targets_and_options(tmp_path):
 def test_blueprint_views_every_image_entity():
     import rerun.blueprint as rrb
 
-    bp = blueprint()
-    assert isinstance(bp, rrb.Blueprint)
-    origins = {}
+    def origins_of(bp):
+        assert isinstance(bp, rrb.Blueprint)
+        origins = {}
 
-    def walk(node):
-        for child in getattr(node, "contents", None) or []:
-            if hasattr(child, "origin"):
-                origins[str(child.origin)] = type(child).__name__
-            else:
-                walk(child)
+        def walk(node):
+            for child in getattr(node, "contents", None) or []:
+                if hasattr(child, "origin"):
+                    origins[str(child.origin)] = type(child).__name__
+                else:
+                    walk(child)
 
-    walk(bp.root_container)
-    for role in ("raw", "s0", "dolp", "aolp", "diffuse", "specular"):
-        assert origins[ENTITIES[role]] == "Spatial2DView"
-    assert origins["/stats"] == "TimeSeriesView"
+        walk(bp.root_container)
+        return origins
+
+    for live in (True, False):
+        origins = origins_of(blueprint(live=live))
+        for role in ("raw", "s0", "dolp", "aolp", "aolp_dolp", "diffuse", "specular"):
+            assert origins[ENTITIES[role]] == "Spatial2DView"
+        assert (origins.get("/stats") == "TimeSeriesView") is live  # statistics for a live capture only
 
 
 def test_s0_is_logged_as_s0_on_a_fixed_8_bit_scale():
@@ -275,3 +279,51 @@ def test_dolp_and_aolp_are_not_shown_where_s0_is_too_dark(tmp_path):
         _, a = _image(data[ENTITIES["aolp"]]["batches"], "SegmentationImage", frame)
         np.testing.assert_array_equal(d, [0, 0, 128, 128])
         np.testing.assert_array_equal(a, [0, 0, 31, 31])
+
+
+def test_aolp_dolp_classes_and_palette():
+    # hue 2 x AoLP as the AoLP map, value min(1, DoLP / 0.25) in 32 steps; colours against
+    # colorsys's HSV -> RGB (an independent conversion)
+    import colorsys
+
+    from polcam.sinks.rerun import AOLP_DOLP_FULL, AOLP_DOLP_STEPS, aolp_dolp_ids
+
+    assert (AOLP_DOLP_FULL, AOLP_DOLP_STEPS) == (0.25, 32)
+    deg = np.array([[0.0, 60.0, 60.0, 60.0, 179.6, 90.0]])
+    dolp = np.array([[0.5, 0.0, 0.125, 0.3, 1.0, 0.0161]], dtype=np.float32)
+    ids = aolp_dolp_ids(np.deg2rad(deg).astype(np.float32), dolp)
+    assert ids.dtype == np.uint16
+    # 0.125 is level 15.5: halves round up; 0.0161 is level 1.996 -> 2
+    np.testing.assert_array_equal(ids, [[1 + 180 * 31, 61, 61 + 180 * 16, 61 + 180 * 31, 1 + 180 * 31, 91 + 180 * 2]])
+    pal = {i: (label, c) for i, label, c in palettes()["aolp_dolp"]}
+    assert sorted(pal) == list(range(0, 180 * 32 + 1)) and pal[0][1] == (0, 0, 0)
+    for a in range(0, 180, 7):
+        for k in range(32):
+            ref = np.array(colorsys.hsv_to_rgb(2 * a / 360, 1.0, k / 31)) * 255
+            got = np.array(pal[1 + a + 180 * k][1])
+            assert np.abs(got - ref).max() <= 2, (a, k, got, ref)
+    assert pal[61 + 180 * 16][0] == "AoLP 60 deg, DoLP 0.129"
+    assert pal[61 + 180 * 31][0] == "AoLP 60 deg, DoLP >= 0.250" and pal[61 + 180 * 31][1] == (0, 255, 0)
+    assert pal[61][1] == (0, 0, 0)  # unpolarized: no colour, whatever its angle
+
+
+def test_aolp_dolp_is_logged_and_masked_where_dark(tmp_path):
+    from polcam.sinks.rerun import aolp_dolp_ids
+
+    path = tmp_path / "both.rrd"
+    sink = RerunSink(path, view_scale=1.0)
+    s0 = np.array([[0.0, 2.4 / 127.5, 2.6 / 127.5, 1.0]], dtype=np.float32)  # codes 0, 2, 3, 128
+    dolp = np.array([[0.5, 0.5, 0.05, 0.2]], np.float32)
+    aolp = np.deg2rad(np.array([[30.0, 30.0, 100.0, 150.0]])).astype(np.float32)
+    sink.log_polarization(0, None, s0=s0, dolp=dolp, aolp=aolp)
+    sink.close()
+    data = _read(path)
+    assert data[ENTITIES["aolp_dolp"]]["static"]  # its palette
+    for rb in data[ENTITIES["aolp_dolp"]]["batches"]:
+        fmt = rb.column("SegmentationImage:format")[0].as_py()[0]
+        raw = np.asarray(rb.column("SegmentationImage:buffer")[0].as_py()[0], dtype=np.uint8)
+    got = raw.view("<u2").reshape(fmt["height"], fmt["width"])
+    expect = aolp_dolp_ids(aolp, dolp)
+    expect[0, :2] = 0  # too dark to have an orientation
+    np.testing.assert_array_equal(got, expect)
+    assert got[0, 2] == 101 + 180 * round(0.05 / 0.25 * 31) and got[0, 3] == 151 + 180 * 25

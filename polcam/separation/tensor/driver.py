@@ -12,8 +12,10 @@ Steps (docs/algorithm.md, section 4, states each as implemented):
 4. tau, and per tile the tensor problem D = L + S by the IALM
    (:func:`.ialm.solve_tiles`), the tiles blended (:func:`.tiling.blend`);
 5. the diffuse: representation 1 of L, mean over the angles, back to the
-   input's illuminant and scale, clipped to [0, Imin] of the input (polcam's:
-   unpolarized light never exceeds the minimum of the polarization sinusoid).
+   input's illuminant and scale; with ``imin_bound=True`` (polcam's option, off
+   by default) clipped to [0, Imin] of the input (unpolarized light never
+   exceeds the minimum of the polarization sinusoid, but polarized diffuse
+   light does).
 
 Only where the work runs differs between backends: numpy runs the initial
 diffuse, the tiles, and one tile's Fourier slices in threads of this process
@@ -82,11 +84,13 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     Returns
     -------
     diffuse : numpy.ndarray
-        (H, W, 3) float64 on the scale of one polarization image, in
-        [0, Imin] of ``stack`` (``Imin = Ic - Isv``, :func:`polcam.polarimetry.imin`).
+        (H, W, 3) float64 on the scale of one polarization image, at least 0; with
+        ``imin_bound=True`` at most Imin of ``stack`` (``Imin = Ic - Isv``,
+        :func:`polcam.polarimetry.imin`).
     info : dict
         Options used, illuminant, representation fill rate, timings, the share
-        of values clipped to Imin (``clipped_to_imin``) and the IALM record (iterations, converged, residual, residuals; over tiles:
+        of values above Imin (``above_imin``, a diagnostic; ``clipped_to_imin``: the
+        share clipped there, 0 without the bound) and the IALM record (iterations, converged, residual, residuals; over tiles:
         the most iterations, all converged, the largest residual, and the
         residuals of the tile that took longest).
     """
@@ -323,12 +327,12 @@ def _finish(diffuse_w: np.ndarray, *, gam: np.ndarray, scale: float, filled: flo
     """Step 5 and the info dict; ``bound`` is the input's Imin (H, W, 3)."""
     opt = plan.opt
     h, w = plan.shape
-    # 5. diffuse: representation 1, mean over angles, back to the input's illuminant, and at most
-    # the input's Imin: the diffuse is unpolarized, so no polarizer angle removes any of it
+    # 5. diffuse: representation 1, mean over angles, back to the input's illuminant; with the
+    # option, at most the input's Imin (unpolarized light passes every polarizer angle)
     diffuse = diffuse_w * scale * (3.0 * gam)
     upper = np.maximum(bound, 0.0)
     above = diffuse > upper
-    diffuse = np.clip(diffuse, 0.0, upper)
+    diffuse = np.clip(diffuse, 0.0, upper) if opt["imin_bound"] else np.maximum(diffuse, 0.0)
     slowest = max(records, key=lambda r: r["iterations"])
     counts: dict[str, int] = {}
     for rec in records:
@@ -354,7 +358,8 @@ def _finish(diffuse_w: np.ndarray, *, gam: np.ndarray, scale: float, filled: flo
         "residuals": slowest["residuals"],
         "final_ranks": slowest["ranks"][-1] if slowest["ranks"] else [],
         "svt_counts": counts,
-        "clipped_to_imin": float(above.mean()),
+        "above_imin": float(above.mean()),
+        "clipped_to_imin": float(above.mean()) if opt["imin_bound"] else 0.0,
     }
     if len(records) > 1:
         info["iterations_per_tile"] = [r["iterations"] for r in records]

@@ -68,6 +68,8 @@ DEFAULTS: dict[str, Any] = {
                           # False: on each of the 4 n4 representation images (the paper);
                           # None: True for the fast solver, False for the exact one
     "seed": 0,
+    "imin_bound": False,  # True: clip the diffuse to [0, Imin] of the input (polcam's option, not the
+                          # paper's; it costs dB where diffuse light is polarized: docs/benchmarks.md)
 }
 
 #: The type of each option (checked by ``polcam.separate`` before any work).
@@ -181,6 +183,8 @@ def resolve(shape: tuple[int, ...], variant: str, options: dict[str, Any]) -> Pl
         from polcam.separation.tensor.torch_backend import check_device
 
         check_device(opt["device"])
+    if not isinstance(opt["imin_bound"], (bool, np.bool_)):
+        raise MethodError(f"imin_bound {opt['imin_bound']!r}: expected True or False")
     if opt["precision"] not in ("float32", "float64"):
         raise MethodError(f"precision {opt['precision']!r}: expected 'float32' or 'float64'")
     workers = opt["workers"]

@@ -212,22 +212,32 @@ def _real_crop(whole=False):
     return stack if whole else np.ascontiguousarray(stack[:, 380:444, 300:364])
 
 
-def test_diffuse_never_exceeds_imin():
-    """Unpolarized light never exceeds the minimum of the polarization sinusoid of its stack."""
+def test_imin_bound_is_an_option_off_by_default():
+    """With ``imin_bound=True`` the diffuse never exceeds the minimum of its stack's sinusoid;
+    without it (the paper's method) it may, and ``above_imin`` reports how often."""
     from polcam.polarimetry import imin
 
     stack, D = _scene(20)                           # planted truth: D <= Imin everywhere
     assert np.all(D <= imin(stack) + 1e-12)
     for kw in ({}, {"solver": "exact"}, {"tile": 12, "overlap": 4, "workers": 1}):
-        res = separate(stack, method="tensor", **kw)
+        res = separate(stack, method="tensor", imin_bound=True, **kw)
         assert np.all(res.diffuse <= imin(stack) + 1e-6) and np.all(res.diffuse >= 0)
-        assert 0 <= res.info["clipped_to_imin"] <= 1
-    # a real stack: the unclipped tensor diffuse exceeded Imin on many pixels (7-22 % of real scenes
-    # by more than 3/255)
+        assert res.info["clipped_to_imin"] == res.info["above_imin"]
+        assert 0 <= res.info["above_imin"] <= 1
+    # a real stack: the tensor diffuse exceeds Imin on many pixels (7-22 % of real scenes by more
+    # than 3/255); the default leaves it there, the bound clips it
     real = _real_crop()
-    res = separate(real, method="tensor")
-    assert res.info["clipped_to_imin"] > 0.01
-    assert np.all(res.diffuse <= np.maximum(imin(real), 0) + 1e-6)
+    free = separate(real, method="tensor")
+    bound = separate(real, method="tensor", imin_bound=True)
+    assert free.info["options"]["imin_bound"] is False and free.info["clipped_to_imin"] == 0.0
+    assert free.info["above_imin"] > 0.01 and bound.info["clipped_to_imin"] == free.info["above_imin"]
+    assert np.mean(free.diffuse > np.maximum(imin(real), 0) + 1e-3) > 0.005
+    assert np.all(bound.diffuse <= np.maximum(imin(real), 0) + 1e-6)
+    # the bound only lowers: where the free diffuse is under Imin, both agree
+    under = np.all(free.diffuse <= np.maximum(imin(real), 0), axis=-1)
+    np.testing.assert_allclose(bound.diffuse[under], free.diffuse[under], atol=1e-6)
+    with pytest.raises(MethodError, match="imin_bound 1"):
+        separate(stack, method="tensor", imin_bound=1)
 
 
 # ---------------------------------------------------------------------------

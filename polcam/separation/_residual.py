@@ -1,0 +1,303 @@
+"""``polarized-residual``'s optional steps for the unpolarized specular light (``unpolarized="measured"``).
+
+Steps 2-6 of docs/algorithm.md, polarized-residual ("The unpolarized specular residual"): the
+polarized specular light as one multiple of the illuminant's colour, its coherent gate, the ratio
+``k`` of unpolarized to polarized specular light measured on coloured highlights, and Shen &
+Zheng's colour prior on the residual.  They are off by default: on the randomized family's
+validation split each of them lowers the mean object PSNR (docs/algorithm.md gives the figures).
+The coherent gate (:func:`coherent_gate`) is used by every path.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from polcam import _imageops
+from polcam._xp import namespace
+from polcam.separation._illuminant import _SATURATED, _plane_basis
+from polcam.separation._polarization_noise import _COHERENT_KSIG, _prior_removal, _reduction
+
+__all__ = ["residual_steps", "coherent_gate", "gradient_ratio"]
+
+#: Where polarized highlights measure k (unpolarized / polarized specular light) below this, the colour
+#: prior is weighted down in proportion: step 2 has already removed almost all of their specular light.
+_PRIOR_K = 0.5
+#: Largest degree of polarization of diffuse light kept as diffuse (Atkinson & Hancock 2006, Fresnel
+#: transmission: ~0.53 at grazing view for n = 1.8, below 0.4 short of 80 degrees).
+_MAX_DIFFUSE_DOLP = 0.5
+#: A polarized diffuse part is accepted only where the two-colour fit ``alpha G + beta e`` leaves less than
+#: this share of what G alone leaves (the part off G lies along the pixel's body colour).
+_DIFFUSE_FIT = 0.3
+
+
+def _odd(n: float) -> int:
+    k = max(int(round(n)), 1)
+    return k if k % 2 else k + 1
+
+
+def residual_steps(v: dict[str, Any], opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[Any, dict[str, Any]]:
+    """Steps 2-6 on the quantities of step 1 (``v``: the names :func:`polarized_residual._colour` gives them).
+
+    Returns the diffuse layer after the colour prior, (H, W, 3), and ``ratio``, ``ratio_source``,
+    ``spec`` (step 3's mask of coherent polarized specular light) and ``floor``.
+    """
+    s, g, gx, ic, imin, isv = v["s"], v["g"], v["gx"], v["ic"], v["imin"], v["isv"]
+    amp, amp_px, a_coh, sig, k_small = v["amp"], v["amp_px"], v["a_coh"], v["sig"], v["k_small"]
+    side, measured, clipped_any = v["side"], v["measured"], v["clipped_any"]
+    xp = namespace(s)
+    h, w = ic.shape[:2]
+    # 2. polarized specular light: the least multiple a of G that covers every channel's amplitude
+    #    (so diffuse <= Imin with one specular colour); where the amplitudes are better explained by
+    #    A = alpha G + beta e with alpha, beta of opposite signs (a diffuse part of colour e polarized
+    #    perpendicular to the specular), the specular part is |alpha| G and the diffuse keeps |beta| e.
+    gg = float(g @ g)
+    amp_g = amp @ gx
+    along = amp_g / gg
+    cover = xp.amax(isv / gx, axis=-1)
+    esum = imin.sum(axis=-1, keepdims=True)
+    e = xp.where(esum > 1e-6, imin / xp.maximum(esum, 1e-6), gx / g.sum())
+    a = xp.astype(cover, xp.float32)
+    b = xp.zeros(a.shape, like=a)
+    if opts["diffuse_polarization"]:
+        off = xp.vnorm(amp - along[..., None] * gx, axis=-1)   # what G alone leaves unexplained
+        noise = float(xp.median(off))
+        ge = e @ gx
+        ee = (e * e).sum(axis=-1)
+        det = gg * ee - ge * ge
+        well = det > (0.2 ** 2) * gg * ee                  # e far from G's colour (sin > 0.2)
+        # the decomposition from the pixel's own amplitudes: smoothing mixes the colours of neighbouring
+        # pixels, which near occluding contours (where diffuse polarization is strongest) differ most
+        dsafe = xp.where(well, det, 1.0)
+
+        def fit(xg: Any, xe: Any) -> tuple[Any, Any, Any]:
+            # per pixel, least squares x = alpha G + beta e from x.G and x.e; and whether the diffuse
+            # colour's term dominates, |beta| |e| > |alpha| |G|
+            al = (ee * xg - ge * xe) / dsafe
+            be = (gg * xe - ge * xg) / dsafe
+            return al, be, abs(be) * xp.sqrt(ee) > abs(al) * np.sqrt(gg)
+
+        ga = amp_px @ gx
+        al, be, dom = fit(ga, (amp_px * e).sum(axis=-1))
+        # significant: beyond five times the typical misfit, 1/255 and 1 % of the pixel's intensity
+        sig_off = off > 5.0 * noise + xp.maximum(0.01 * xp.vnorm(ic, axis=-1), 1.0 / 255)
+        # and explained: what G leaves of the pixel's amplitudes lies along its own body colour e (the
+        # two-colour fit leaves under _DIFFUSE_FIT of it); demosaicing's false polarization (one
+        # channel's interpolation error, a neighbour's colour at an edge) points elsewhere
+        off_px = xp.vnorm(amp_px - (ga / gg)[..., None] * gx, axis=-1)
+        misfit = xp.vnorm(amp_px - al[..., None] * gx - be[..., None] * e, axis=-1)
+        sig_off &= misfit < _DIFFUSE_FIT * off_px
+        # also where the diffuse colour's term dominates the amplitudes (dom: a polarized diffuse part
+        # with little or no specular light, e.g. near occluding contours): only a G term of the opposite
+        # sign (perpendicular AoLP) is specular there, so the polarized diffuse light is kept
+        # and physically possible: a diffuse surface's degree of polarization stays below 0.5 (Atkinson &
+        # Hancock 2006: at most ~0.53 at grazing view for n = 1.8); a larger |beta| e comes from a misfit
+        # (opposite-signed alpha and beta cancelling each other on strongly polarized highlights)
+        a_c = xp.where(al * be < 0, abs(al), 0.0)
+        plaus = (abs(be)[..., None] * e
+                 <= _MAX_DIFFUSE_DOLP * xp.maximum(ic - a_c[..., None] * gx, 0.0) + 1.0 / 255).all(axis=-1)
+        take = well & sig_off & ((al * be < 0) | dom) & plaus
+        a = xp.astype(xp.where(take, xp.where(al * be < 0, abs(al), 0.0), a), xp.float32)
+        b = xp.astype(xp.where(take, abs(be), 0.0), xp.float32)
+        # for step 3, only the specular part marks a highlight: where the smoothed amplitudes' diffuse-
+        # colour term dominates and what G leaves of them is beyond _COHERENT_KSIG of its noise (a
+        # surface's own coherent polarized light, as near occluding contours), the G term |alpha| alone
+        # counts
+        al_s, _, dom_s = fit(amp_g, (amp * e).sum(axis=-1))
+        own = well & dom_s & (off > _COHERENT_KSIG * _reduction(k_small) * xp.sqrt((sig * sig).sum(axis=-1)))
+        a_coh = xp.astype(xp.where(own, xp.minimum(abs(al_s), a_coh), a_coh), xp.float32)
+    ub = xp.minimum(imin + b[..., None] * e, ic)            # diffuse <= Imin (+ its own polarized part)
+    # the bound is met by more of the one specular colour, not by clipping channels one by one (which
+    # would give the specular layer the colours of the channels' polarization errors)
+    a = xp.maximum(a, xp.amax((ic - ub) / gx, axis=-1))
+    a = xp.minimum(a, xp.amin(ic / gx, axis=-1))            # one specular colour: never more than the pixel has
+    resid = xp.clip(ic - a[..., None] * gx, 0.0, ub)        # polarized specular light removed
+    if keep is not None:
+        keep.update(imin=xp.astype(imin, xp.float32), polarized_removed=xp.astype(resid, xp.float32))
+
+    # 3. where coherent polarized specular light is (highlights; a_coh is specular only, step 2)
+    lum = ic.mean(axis=-1)
+    floor, a_eff, lum_s, gate = coherent_gate(a_coh, lum, k_small, float(opts["polarized_threshold"]),
+                                               float(g.mean()))
+    spec = a_eff * float(g.mean()) > xp.maximum(opts["polarized_threshold"] * lum_s, 1.0 / 255)
+    k_ctx = _odd(opts["context"] * side)
+
+    # 4. hue and saturation of the residual around the illuminant point of the chromaticity plane
+    rsum = resid.sum(axis=-1)
+    lit = rsum > 3.0 / 255
+    chroma = resid / xp.maximum(rsum, 1e-6)[..., None]
+    v = (chroma - gx / g.sum()) @ xp.asarray(_plane_basis().T.astype(np.float32), like=s)  # (H, W, 2)
+    sat = xp.astype(xp.hypot(v[..., 0], v[..., 1]), xp.float32)
+    sat = xp.astype(xp.where(lit, sat, 0.0), xp.float32)
+    hue = xp.arctan2(v[..., 1], v[..., 0])
+    nb = int(opts["hue_bins"])
+    hbin = xp.astype(xp.floor((hue + np.pi) / (2 * np.pi) * nb), xp.index) % nb
+    # median filters: robust to colour noise without mixing the colours of neighbouring materials
+    big = min(h, w) >= 5
+    sat_m = _imageops.median(sat, 5) if big else sat
+    sat = _imageops.median(sat, 3) if big else sat
+    sat_d = xp.zeros(sat.shape, like=sat)
+    per_bin = []
+    for k in range(nb):
+        # only lit pixels lend their saturation to a hue: an unlit pixel's hue is that of rounding
+        # noise (its residual is ~1e-11), while the median filters give it its lit neighbours'
+        # saturation; a change of 1e-7 in the input moved it to another hue and moved the diffuse
+        # of a whole neighbourhood by up to 0.17 (docs/algorithm.md, ninth round)
+        m = (hbin == k) & lit
+        per_bin.append(_imageops.dilate(xp.astype(xp.where(m, sat_m, 0.0), xp.float32), k_ctx)
+                       if bool(m.any()) else None)
+    for k in range(nb):
+        m = hbin == k
+        if not bool(m.any()):
+            continue
+        best = xp.zeros((int(m.sum()),), like=sat)
+        for j in (k - 1, k, k + 1):   # neighbouring hues too: noise moves a pixel's hue a little
+            pb = per_bin[j % nb]
+            if pb is not None:
+                best = xp.maximum(best, pb[m])
+        sat_d[m] = best
+    coloured = (sat_d > opts["min_saturation"]) & (sat > 0.5 * opts["min_saturation"]) & lit
+    share_spec = xp.where(coloured, 1.0 - xp.clip(sat / xp.maximum(sat_d, 1e-6), 0.0, 1.0), 0.0)
+    r_col = share_spec * rsum / float(g.sum())              # residual specular, in units of G
+
+    # 5. the unpolarized residual is k times the polarized specular light, with k (the Fresnel ratio
+    #    (1 - rho_s) / rho_s) measured on coloured highlights and smoothed over the neighbourhood:
+    #    achromatic pixels take the k of the coloured highlights around them (or of the image)
+    a_pix = xp.minimum(a_eff, a)                            # coherent, and no more than the pixel's own
+    # only where coherent polarized light marks a highlight (step 3's gate: weakly polarized white
+    # surfaces stay diffuse)
+    # not where a sample is clipped: that pixel's colour (and so its specular share) is not measured, and
+    # a clipped channel makes the residual look paler, which overstated k
+    rel = coloured & spec & (a_pix > 1.0 / 255) & ~clipped_any
+    num_p = xp.astype(xp.where(rel, xp.minimum(r_col, float(opts["max_ratio"]) * a_pix), 0.0), xp.float32)
+    den_p = xp.astype(xp.where(rel, a_pix, 0.0), xp.float32)
+    if int(rel.sum()) >= 20:
+        ratio = float(num_p.sum() / den_p.sum())
+        ratio_source = "coloured highlights"
+    else:  # no coloured highlight: the highlights' spatial profile decides (as for mono stacks)
+        ratio = gradient_ratio(xp.astype((imin / gx).mean(axis=-1), xp.float32),
+                                xp.astype(a_pix * gate, xp.float32), float(opts["max_ratio"]))
+        ratio_source = "gradients"
+    num = _imageops.box(num_p, k_ctx, normalize=False)
+    den = _imageops.box(den_p, k_ctx, normalize=False)
+    k_loc = xp.where(den > 1e-3 * max(float(den.max()), 1e-12), num / xp.maximum(den, 1e-12), ratio)
+    r = gate * k_loc * a_pix
+    r = xp.minimum(r, xp.amin(resid / gx, axis=-1))         # diffuse >= 0 in every channel
+    diffuse = xp.clip(resid - r[..., None] * gx, 0.0, ub)
+    if keep is not None:
+        keep["ratio_removed"] = xp.astype(diffuse, xp.float32)
+    if opts["residual_model"] == "shen13":
+        # coloured pixels: Shen & Zheng's (2013) specular-free clustering applied to the residual only,
+        # in the illuminant-normalised space (where the residual specular light is white), never
+        # above the residual; achromatic pixels keep the polarization-decided layer above (a ramp
+        # over the locally averaged residual's saturation from min_saturation to twice it)
+        norm = resid / gx
+        peak = float(norm.max())
+        if peak > 0:
+            sf = _specular_free(xp.astype(xp.clip(norm / peak, 0.0, 1.0), xp.float64), 3 * k_small) * peak * gx
+            sf = xp.clip(sf, 0.0, resid)
+            ms = float(opts["min_saturation"])
+            # the saturation of the locally averaged layer of step 5 (the specular light that polarization
+            # measured already removed, so a highlight's white light does not make a coloured material
+            # look achromatic): colour noise (demosaicing) averages out
+            kw = _odd(3 * k_small)
+            rb = _imageops.box(diffuse, kw)
+            cb = rb / xp.maximum(rb.sum(axis=-1, keepdims=True), 1e-6) - gx / g.sum()
+            sat_w = xp.vnorm(cb, axis=-1)
+            wgt = xp.clip((sat_w - ms) / ms, 0.0, 1.0)
+            # and only on coloured materials: the most saturated residual of the pixel's hue nearby
+            # (step 4's sat_d, the material's body colour) ramps the prior in from min_saturation to
+            # twice it, so a weakly coloured material is decided by polarization, not by colour
+            wgt = wgt * xp.clip((sat_d - ms) / ms, 0.0, 1.0)
+            if ratio_source == "coloured highlights":
+                # near polarized highlights whose measured k is small, their specular light was almost
+                # all polarized and step 2 removed it: the colour prior is weighted down there
+                near = _imageops.box(xp.astype(gate, xp.float32), k_ctx)
+                wgt = wgt * (1.0 - near * (1.0 - xp.clip(k_loc / _PRIOR_K, 0.0, 1.0)))
+            # not where a channel is clipped at all four angles: that pixel's colour is not measured (an
+            # overexposed white wall under a tinted light looked coloured and lost up to 38 % of its
+            # light; docs/algorithm.md, tenth round); a clipped highlight is step 7's
+            wgt = xp.where(xp.amax(measured, axis=-1) >= _SATURATED, 0.0, wgt)
+            wgt = wgt[..., None]
+            diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig,
+                                                     smooth=k_small)
+    if keep is not None:
+        keep["prior_removed"] = xp.astype(diffuse, xp.float32)
+    return diffuse, {"ratio": ratio, "ratio_source": ratio_source, "spec": spec, "floor": floor}
+
+
+def _specular_free(image: Any, smooth: float) -> Any:
+    """Shen & Zheng's (2013) specular-free image, its clusters' intensity ratios smoothed in the image.
+
+    ``image`` is (H, W, 3) float64 in [0, 1] (numpy or torch); returns (H, W, 3) float32 in
+    [0, image], of the same kind.  Each
+    cluster's ratio ``Q`` (:func:`polcam.separation.shen13.cluster_ratios`, the paper's defaults) is
+    a constant of its material, but the hard clustering puts the pixels of one smoothly shaded,
+    weakly coloured material on both sides of a cluster boundary, and two ratios side by side make
+    blotches (seen on lmmse-1's pink candy).  So the ratio map is filtered with a joint bilateral
+    filter (polcam.filters; Yang, Wang & Ahuja, ECCV 2010, filter a ratio the same way) guided by
+    the image's mean over channels: spatial sigma ``smooth`` pixels, range sigma a tenth of the
+    guide's maximum, so material edges of different brightness keep their own ratios.
+    """
+    from polcam.filters import joint_bilateral
+    from polcam.separation.shen13 import cluster_ratios, ratio_specular
+
+    xp = namespace(image)
+    q_map, _ = cluster_ratios(image)
+    ok = xp.isfinite(q_map)
+    if bool(ok.any()):
+        # on a grid f times coarser (f = smooth / 6, as the filter's own grid): the ratio map is
+        # piecewise constant, and the filter's cost at full resolution was a second a frame
+        h, w = ok.shape
+        f = max(1, int(smooth // 6))
+        size = (max(1, -(-w // f)), max(1, -(-h // f)))
+        f32 = xp.float32
+        wt = _imageops.resize(xp.astype(ok, f32), size, interpolation="area")
+        qw = _imageops.resize(xp.astype(xp.where(ok, q_map, 0.0), f32), size, interpolation="area")
+        guide = _imageops.resize(xp.astype(image.mean(axis=-1), f32), size, interpolation="area")
+        q_s = joint_bilateral(qw / xp.maximum(wt, 1e-12), guide, sigma_spatial=float(smooth) / f,
+                              sigma_range=0.1 * max(float(guide.max()), 1e-6), weights=wt)
+        q_s = _imageops.resize(xp.astype(q_s, f32), (w, h), interpolation="linear")
+        q_map = xp.where(ok, xp.astype(q_s, xp.float64), float("nan"))
+    return xp.astype(xp.clip(image - ratio_specular(image, q_map)[..., None], 0.0, image), xp.float32)
+
+
+def coherent_gate(a_coh: Any, lum: Any, k_small: int, threshold: float,
+                   scale: float = 1.0) -> tuple[float, Any, Any, Any]:
+    """Where coherent polarized light marks a highlight (colour and mono paths alike).
+
+    ``a_coh`` (H, W) is the smoothed polarized amplitude (times ``scale``, the illuminant's mean
+    for colour, it is in the units of ``lum``), ``lum`` (H, W) the intensity.  Returns the floor
+    that noise leaves everywhere (the median of ``a_coh``), ``a_eff = max(a_coh - floor, 0)``,
+    ``lum`` Gaussian-blurred over ``k_small``, and the gate: a ramp from ``threshold`` to twice it
+    in the coherent degree of polarization ``scale a_eff / lum_s``, (H, W) in [0, 1].
+    """
+    xp = namespace(a_coh)
+    floor = float(xp.median(a_coh))
+    a_eff = xp.maximum(a_coh - floor, 0.0)
+    lum_s = _imageops.gaussian(lum, k_small)
+    dop = a_eff * scale / xp.maximum(lum_s, 1e-6)
+    return floor, a_eff, lum_s, xp.clip((dop - threshold) / threshold, 0.0, 1.0)
+
+
+def gradient_ratio(imin: Any, a_pix: Any, max_ratio: float) -> float:
+    """k that removes the highlights' spatial profile from ``imin - k a_pix`` (both (H, W)).
+
+    k minimises the total variation of ``Imin - k a`` along a's gradients: the weighted median of the
+    gradient ratios ``grad Imin / grad a`` (x and y Sobel components, weights ``|grad a|``), over
+    pixels inside highlights and away from dark regions (a silhouette is an edge of both), clipped
+    to [0, max_ratio]; 0 with fewer than 20 such gradients.
+    """
+    xp = namespace(imin)
+    gi = xp.concatenate([_imageops.sobel(imin, 1, 0).reshape(-1), _imageops.sobel(imin, 0, 1).reshape(-1)])
+    ga = xp.concatenate([_imageops.sobel(a_pix, 1, 0).reshape(-1), _imageops.sobel(a_pix, 0, 1).reshape(-1)])
+    inner = _imageops.erode(xp.astype((a_pix > 0) & (imin > 2.0 / 255), xp.float32), 5) > 0
+    use = (abs(ga) > 1e-4) & xp.concatenate([inner.reshape(-1), inner.reshape(-1)])
+    if int(use.sum()) < 20:
+        return 0.0
+    rr = gi[use] / ga[use]
+    ww = abs(ga[use])
+    order = xp.argsort(rr)
+    cw = xp.cumsum(ww[order])
+    return float(np.clip(float(rr[order][xp.searchsorted(cw, 0.5 * cw[-1])]), 0.0, max_ratio))

@@ -1,0 +1,37 @@
+"""Edge polarization: the share of the polarized light along the local edge normal."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from polcam.separation._diffuse_polarization import radial_share
+
+
+def _disk(h=64, w=64, r=20):
+    yy, xx = np.mgrid[:h, :w].astype(np.float64)
+    dy, dx = yy - h / 2, xx - w / 2
+    rad = np.hypot(dx, dy)
+    lum = np.where(rad < r, 0.6, 0.05).astype(np.float32)
+    # the outward normal's azimuth in the AoLP convention (counter-clockwise, y up)
+    azimuth = np.arctan2(-dy, dx)
+    return lum, azimuth, rad
+
+
+def test_polarization_along_a_contours_normal_is_diffuse_and_across_it_is_not():
+    lum, azimuth, rad = _disk()
+    rim = np.abs(rad - 20) < 1.5
+    for phi, want in ((azimuth, 1.0), (azimuth + np.pi / 2, 0.0)):
+        amp = 0.05
+        q = np.repeat((amp * np.cos(2 * phi))[..., None], 3, -1).astype(np.float32)
+        u = np.repeat((amp * np.sin(2 * phi))[..., None], 3, -1).astype(np.float32)
+        share = radial_share(q, u, lum, smooth=5)
+        assert share.shape == q.shape and share.min() >= 0 and share.max() <= 1
+        assert abs(float(share[rim].mean()) - want) < 0.1
+
+
+def test_no_share_where_the_gradient_has_no_direction():
+    rng = np.random.default_rng(0)
+    lum = np.full((40, 40), 0.5, np.float32)
+    q = rng.normal(0, 0.01, (40, 40, 3)).astype(np.float32)
+    u = rng.normal(0, 0.01, (40, 40, 3)).astype(np.float32)
+    assert float(radial_share(q, u, lum, smooth=5).max()) == 0.0
