@@ -57,10 +57,10 @@ def test_misspelled_command_is_suggested(capsys):
     assert code == 2 and "(did you mean process?)" in err
 
 
-@pytest.mark.parametrize("extra", [[], ["--method", "tensor"]])
-def test_option_of_the_wrong_type_is_refused_before_any_frame(extra, capsys, tmp_path):
+def test_option_of_the_wrong_type_is_refused_before_any_frame(capsys, tmp_path):
     out = tmp_path / "out"
-    code, err = _run(["process", str(COLOUR), "-o", str(out), *extra, "--option", "max_iter=abc"], capsys)
+    code, err = _run(["process", str(COLOUR), "-o", str(out), "--method", "tensor", "--option", "max_iter=abc"],
+                     capsys)
     assert code == 2
     assert "option max_iter='abc' of method 'tensor': expected an integer" in err
     assert not out.exists()
@@ -98,6 +98,7 @@ def _polcam(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
 def test_as_a_user_runs_it(tmp_path):
     r = _polcam("process", str(COLOUR), "-o", "out", "--methd", "tensor", cwd=tmp_path)
     assert r.returncode == 2 and "did you mean --method?" in r.stderr and "usage: polcam process" in r.stderr
-    r = _polcam("process", str(COLOUR), "-o", "out", "--option", "max_iter=abc", cwd=tmp_path)
+    r = _polcam("process", str(COLOUR), "-o", "out", "--method", "tensor", "--option", "max_iter=abc",
+                cwd=tmp_path)
     assert r.returncode == 2 and "option max_iter='abc' of method 'tensor': expected an integer" in r.stderr
     assert list(tmp_path.iterdir()) == []

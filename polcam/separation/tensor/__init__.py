@@ -39,6 +39,7 @@ arrays, or PyTorch tensors with ``device=`` (the ``torch`` extra).
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 from polcam.separation._registry import register
 from polcam.separation.tensor.driver import initial_diffuse, separate_tensor, warm_up
@@ -106,6 +107,6 @@ REFERENCE = (
 )
 
 for _variant in VARIANTS:
-    register(_variant, kind="stack", reference=REFERENCE, options=OPTION_TYPES)(
+    register(_variant, kind="stack", reference=REFERENCE, options={k: OPTION_TYPES.get(k, Any) for k in DEFAULTS})(
         functools.partial(separate_tensor, variant=_variant)
     )

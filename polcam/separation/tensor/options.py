@@ -80,6 +80,7 @@ OPTION_TYPES: dict[str, Any] = {
     "illuminant": Union[str, tuple[float, float, float]], "solver": str,
     "tile": Union[int, tuple[int, int], None], "overlap": int, "workers": Optional[int],
     "device": Optional[str], "precision": str, "shared_init": Optional[bool], "seed": int,
+    "imin_bound": bool,
 }
 
 #: The paper's stopping tolerance, kept by the exact solver.
@@ -169,7 +170,7 @@ def resolve(shape: tuple[int, ...], variant: str, options: dict[str, Any]) -> Pl
             f"expected: {', '.join(DEFAULTS)}"
         )
     for key, value in options.items():
-        if not matches(value, OPTION_TYPES[key]):
+        if key in OPTION_TYPES and not matches(value, OPTION_TYPES[key]):
             raise MethodError(f"option {key}={value!r} of method {variant!r}: "
                               f"expected {describe(OPTION_TYPES[key])}")
     opt = {**DEFAULTS, **options}

@@ -20,8 +20,8 @@ import numpy as np
 from polcam.separation import separate
 
 #: A user's script, unguarded: it prints a line first (a worker process that imported the
-#: script would print it again), then separates a 512 x 512 colour stack with the default
-#: method (tensor, tiled at this size) in two threads.
+#: script would print it again), then separates a 512 x 512 colour stack with the tensor
+#: method (tiled at this size) in two threads.
 SCRIPT = """\
 print("start")
 import numpy as np
@@ -34,7 +34,7 @@ spec = 0.4 * np.exp(-((xx - 0.5) ** 2 + (yy - 0.5) ** 2) / 0.02)[..., None]
 angles = np.deg2rad([0, 45, 90, 135])[:, None, None, None]
 stack = albedo / 2 + spec * (0.5 + 0.45 * np.cos(2 * angles - 1.0))
 stack = np.clip(stack + rng.normal(0, 0.003, stack.shape), 0, 1)
-res = polcam.separate(stack, max_iter=3, workers=2)
+res = polcam.separate(stack, method="tensor", max_iter=3, workers=2)
 assert res.info["method"] == "tensor" and res.info["tiles"] > 1, res.info
 assert np.all(np.isfinite(res.diffuse)) and res.diffuse.shape == (512, 512, 3)
 print("done", res.info["tiles"])
