@@ -106,7 +106,7 @@ def register(name: str, *, kind: str, mono: bool = False, reference: str = "",
 #: The method ``separate`` runs when none is named, per input form (see :func:`input_form`).
 #: Stacks: the one the default-method rule picks (docs/benchmarks.md, "Default method rule";
 #: polcam.bench.default_rule) from the recorded table tests/separation/default_rule_table.json.
-_DEFAULTS = {"stack": "imin", "mono-stack": "imin", "image": "yang10"}
+_DEFAULTS = {"stack": "wen21", "mono-stack": "imin", "image": "yang10"}
 
 
 def default_method(form: str) -> str:
