@@ -1,41 +1,60 @@
-"""polcam's one policy for running work in parallel: start method, worker count, BLAS threads.
+"""polcam's one policy for running work in parallel: threads in the library, processes in the commands.
 
-Worker processes are started by **forkserver** where the platform has it
-(Linux, macOS), by spawn elsewhere; never by plain fork.  A process that forks
-while other threads run (BLAS and OpenMP pools, OpenImageIO, a live view's
-reader thread, a user's application) hands the child copies of locks those
-threads may hold at that instant, and a child that then takes such a lock
-waits forever (Python 3.12 warns about it; 3.14 made forkserver the default on
-Linux).  A fork server is a clean single-threaded process, started once, that
-forks each worker: as cheap per worker as fork after its first start (about
-0.4 s, which :func:`start_workers` can pay up front), with the modules of
-:data:`PRELOAD` (and a caller's ``preload``) imported once in the server.
-Like spawn, it imports the main script in each worker, which must be guarded
-by ``if __name__ == "__main__":``.
+**The library** (``polcam.separate`` and the steps it runs) works in
+**threads** (:func:`map_threads`, :func:`submit_threads`), so a call works the
+same from any caller: a script with or without an ``if __name__ ==
+"__main__":`` guard, a script piped to ``python -``, ``python -c``, a
+notebook, a thread, a Dask worker (whose daemonic processes may not start
+processes of their own).  The heavy parts release the GIL (LAPACK through
+:mod:`polcam.separation._lapack`, BLAS, FFTs, numpy's element-wise loops on
+large arrays).  While threads run, BLAS is limited to one thread for the whole
+process by :func:`blas_limit`: threadpoolctl's limits are process-global (they
+set OpenBLAS' one thread count), so one limit is held around the whole
+threaded section, counted across concurrent sections so that the first one
+in sets it and the last one out restores what was there before.
 
-Every worker limits its BLAS/OpenMP pools to ``blas_threads`` threads (default
-1): the work is split among processes, and N workers each running a pool of
-the CPU count's threads oversubscribe the cores (OpenBLAS' threaded complex SVD
-of the tensor method's slice sizes ran 12 times slower than its
+**The commands** (``polcam process``), where polcam owns ``__main__``, run
+frames in worker **processes** (:func:`process_pool`), started by
+**forkserver** where the platform has it (Linux, macOS), by spawn elsewhere;
+never by plain fork.  A process that forks while other threads run (BLAS and
+OpenMP pools, OpenImageIO, a live view's reader thread, a user's application)
+hands the child copies of locks those threads may hold at that instant, and a
+child that then takes such a lock waits forever (Python 3.12 warns about it;
+3.14 made forkserver the default on Linux).  A fork server is a clean
+single-threaded process, started once, that forks each worker: as cheap per
+worker as fork after its first start (about 0.4 s, which
+:func:`start_workers` can pay up front), with the modules of :data:`PRELOAD`
+(and a caller's ``preload``) imported once in the server.  Like spawn, it
+imports the main script in each worker: only code that owns ``__main__`` may
+use it.
+
+Every worker process limits its BLAS/OpenMP pools to ``blas_threads`` threads
+(default 1): the work is split among processes, and N workers each running a
+pool of the CPU count's threads oversubscribe the cores (OpenBLAS' threaded
+complex SVD of the tensor method's slice sizes ran 12 times slower than its
 single-threaded one on a 2-core machine).
 
 Public API::
 
     default_workers(limit=MAX_AUTO_WORKERS) -> int      # CPU count, at most limit
+    map_threads(fn, jobs, workers) -> list               # [fn(j) for j in jobs] in threads
+    submit_threads(fn, jobs, workers) -> (pool, futures)
+    blas_limit(threads=1)                                # context manager, process-wide, counted
     context(preload=()) -> multiprocessing context        # the start method above
     start_workers(preload=()) -> str                      # start the fork server now
     process_pool(workers, *, preload=(), blas_threads=1, initializer=None)  # a ProcessPoolExecutor
     map_processes(fn, jobs, workers, ...) -> list         # [fn(j) for j in jobs] in processes
     submit_processes(fn, jobs, workers, ...) -> (pool, futures)
-    blas_limit(threads=1)                                 # context manager, this process
 """
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
-from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+import threading
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from typing import Any
 
 from threadpoolctl import threadpool_limits
@@ -44,13 +63,15 @@ __all__ = [
     "MAX_AUTO_WORKERS",
     "PRELOAD",
     "default_workers",
+    "map_threads",
+    "submit_threads",
+    "blas_limit",
     "start_method",
     "context",
     "start_workers",
     "process_pool",
     "map_processes",
     "submit_processes",
-    "blas_limit",
 ]
 
 #: Most workers chosen automatically (each holds a few hundred MB at most).
@@ -109,9 +130,119 @@ def _limit_blas(threads: int, then: Callable[[], None] | None = None) -> None:
         then()
 
 
-def blas_limit(threads: int = 1) -> Any:
-    """Context manager: at most ``threads`` BLAS threads in this process while it is open."""
-    return threadpool_limits(limits=threads, user_api="blas")
+_BLAS_LOCK = threading.Lock()
+_BLAS_HELD: list[Any] = []     # the open limit (threadpoolctl's), while sections are open
+_BLAS_OPEN = 0                 # sections open, in all threads
+
+
+def _in_own_thread(fn: Callable[[], Any]) -> Any:
+    """``fn()`` run in a short-lived thread of its own; its result.
+
+    threadpoolctl lets one Python thread at a time change OpenBLAS' thread count
+    (the "controlling thread", until it leaves its last limit context or ends),
+    and ignores the others.  Setting and restoring the limit each in a thread
+    that ends at once lets any caller's thread open the first section and any
+    close the last.
+    """
+    box: list[Any] = []
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            box.append(fn())
+        except BaseException as exc:  # pragma: no cover - threadpoolctl failing
+            errors.append(exc)
+
+    t = threading.Thread(target=run, name="polcam-blas-limit")
+    t.start()
+    t.join()
+    if errors:  # pragma: no cover
+        raise errors[0]
+    return box[0]
+
+
+@contextlib.contextmanager
+def blas_limit(threads: int = 1) -> Iterator[None]:
+    """Context manager: at most ``threads`` BLAS threads in this process while any section is open.
+
+    The limit is process-wide (threadpoolctl sets the BLAS libraries' own
+    thread counts), so sections opened by concurrent callers (two threads each
+    running ``polcam.separate``) share one: the first section in sets it, the
+    last one out restores the counts found by the first, whichever threads
+    they run in; a section opened while another is open keeps the open one's
+    limit.  BLAS calls of the process's other threads run under the limit
+    meanwhile.  A thread of the caller's that holds threadpoolctl limits of its
+    own (``with threadpool_limits(...)``, open) keeps them: threadpoolctl lets
+    only that thread change them.
+    """
+    global _BLAS_OPEN
+    with _BLAS_LOCK:
+        if _BLAS_OPEN == 0:
+            _BLAS_HELD.append(_in_own_thread(lambda: threadpool_limits(limits=int(threads), user_api="blas")))
+        _BLAS_OPEN += 1
+    try:
+        yield
+    finally:
+        with _BLAS_LOCK:
+            _BLAS_OPEN -= 1
+            if _BLAS_OPEN == 0:
+                _in_own_thread(_BLAS_HELD.pop().restore_original_limits)
+
+
+def _map_bounded(pool: Executor, fn: Callable[[Any], Any], jobs: Iterable[Any], workers: int,
+                 in_flight: int) -> list[Any]:
+    """``[fn(j) for j in jobs]`` on ``pool``, at most ``in_flight`` jobs per worker submitted ahead."""
+    out: dict[int, Any] = {}
+    it = iter(enumerate(jobs))
+    pending: dict[Future, int] = {}
+    try:
+        for i, job in it:
+            pending[pool.submit(fn, job)] = i
+            if len(pending) >= in_flight * workers:
+                break
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for f in done:
+                out[pending.pop(f)] = f.result()
+                nxt = next(it, None)
+                if nxt is not None:
+                    pending[pool.submit(fn, nxt[1])] = nxt[0]
+    except BaseException:
+        for f in pending:
+            f.cancel()
+        raise
+    return [out[i] for i in range(len(out))]
+
+
+def map_threads(fn: Callable[[Any], Any], jobs: Iterable[Any], workers: int, *, in_flight: int = 2
+                ) -> list[Any]:
+    """``[fn(j) for j in jobs]`` in ``workers`` threads, at most ``in_flight`` jobs per thread queued.
+
+    Jobs are drawn from the iterable as threads free up, so a generator of
+    large jobs is never held whole in memory.  The first exception raised by
+    ``fn`` is raised here (jobs not started are cancelled).  The caller limits
+    BLAS (:func:`blas_limit`) around it where the jobs call BLAS.
+    """
+    if workers < 1:
+        raise ValueError(f"workers = {workers!r}: expected a positive integer")
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="polcam") as pool:
+        return _map_bounded(pool, fn, jobs, workers, in_flight)
+
+
+def submit_threads(fn: Callable[[Any], Any], jobs: Iterable[Any], workers: int
+                   ) -> tuple[ThreadPoolExecutor, list[Future]]:
+    """Start ``fn(j)`` for every job in ``workers`` threads; returns the pool and the futures.
+
+    The caller collects the results and shuts the pool down (``with pool:``).
+    """
+    if workers < 1:
+        raise ValueError(f"workers = {workers!r}: expected a positive integer")
+    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="polcam")
+    try:
+        return pool, [pool.submit(fn, job) for job in jobs]
+    except BaseException:
+        pool.shutdown(cancel_futures=True)
+        raise
 
 
 def process_pool(workers: int, *, preload: Sequence[str] = (), blas_threads: int = 1,
@@ -143,21 +274,8 @@ def map_processes(fn: Callable[[Any], Any], jobs: Iterable[Any], workers: int, *
     """``[fn(j) for j in jobs]`` in ``workers`` processes, at most ``in_flight`` jobs per worker queued.
 
     Jobs are drawn from the iterable as workers free up, so a generator of
-    large jobs is never held whole in memory.
+    large jobs is never held whole in memory.  For code that owns ``__main__``
+    (the commands): the workers import the main script.
     """
-    out: dict[int, Any] = {}
-    it = iter(enumerate(jobs))
     with process_pool(workers, preload=preload) as pool:
-        pending: dict[Future, int] = {}
-        for i, job in it:
-            pending[pool.submit(fn, job)] = i
-            if len(pending) >= in_flight * workers:
-                break
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for f in done:
-                out[pending.pop(f)] = f.result()
-                nxt = next(it, None)
-                if nxt is not None:
-                    pending[pool.submit(fn, nxt[1])] = nxt[0]
-    return [out[i] for i in range(len(out))]
+        return _map_bounded(pool, fn, jobs, workers, in_flight)

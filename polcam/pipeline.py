@@ -132,10 +132,13 @@ def products(stack: np.ndarray, names: Iterable[str] = tuple(PRODUCTS)) -> dict[
 
 def separate_layers(stack: np.ndarray, *, method: str | None = None,
                     options: Mapping[str, Any] | None = None) -> Separation:
-    """Diffuse and specular layers of a stack (clipped to [0, 1] first) by ``method`` (None: the registry's default)."""
+    """Diffuse and specular layers of a stack by ``method`` (None: the registry's default).
+
+    :func:`polcam.separate` clips the stack to [0, 1] (recorded in ``info``).
+    """
     from polcam.separation import separate
 
-    return separate(np.clip(stack, 0.0, 1.0), method=method, **dict(options or {}))
+    return separate(stack, method=method, **dict(options or {}))
 
 
 def _takes_fit(method: str | None, stack_shape: tuple[int, ...]) -> bool:

@@ -23,7 +23,7 @@ def _takes(method: str, option: str) -> bool:
     from polcam.separation._registry import check_options
 
     try:
-        check_options(method, {option: None})
+        check_options(method, {option: None}, types=False)
     except MethodError:
         return False
     return True
@@ -65,7 +65,8 @@ def check_run(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, str]:
     ------
     MethodError
         An unknown method; an option the named method does not take, or (no method named)
-        that no method of the run takes; a colour-only method with a mono ``--layout``.
+        that no method of the run takes; an option value not of the option's type; a
+        colour-only method with a mono ``--layout``.
     LayoutError
         An unknown ``opts.layout``.
     """
@@ -96,9 +97,12 @@ def check_run(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, str]:
             reasons = []
             for m in sorted(set(chosen.values())):
                 try:
-                    check_options(m, {key: None})
+                    check_options(m, {key: None}, types=False)
                 except MethodError as exc:
                     reasons.append(str(exc))
             used = ", ".join(f"{m} for {'colour' if f == 'stack' else 'mono'} frames" for f, m in chosen.items())
             raise MethodError(f"--option {key}: no method of this run ({used}) takes it: {'; '.join(reasons)}")
+        for m in sorted(set(chosen.values())):
+            if _takes(m, key):
+                check_options(m, {key: opts.method_options[key]})
     return chosen

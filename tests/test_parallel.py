@@ -1,4 +1,4 @@
-"""polcam's parallel-execution policy: start method, worker count, BLAS threads in workers."""
+"""polcam's parallel-execution policy: threads in the library, processes in the commands, BLAS threads."""
 
 from __future__ import annotations
 
@@ -56,14 +56,77 @@ def test_pools_work_with_a_thread_running():
         other.join()
 
 
-def test_blas_limit_in_this_process():
+def _blas_threads() -> list[int]:
     from threadpoolctl import threadpool_info
 
+    return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+
+
+def test_blas_limit_in_this_process():
     with parallel.blas_limit(1):
-        assert all(p["num_threads"] == 1 for p in threadpool_info() if p["user_api"] == "blas")
+        assert all(n == 1 for n in _blas_threads())
 
 
-@pytest.mark.parametrize("bad", [0])
+def test_blas_limit_overlapping_sections_restore_the_original():
+    """Two threads' sections overlap (A in, B in, A out, B out): the limit holds until the last
+    one leaves, which restores the counts found before the first (threadpoolctl's limits are
+    process-wide, and it lets one thread at a time change them)."""
+    before = _blas_threads()
+    a_in, b_in, a_out = threading.Event(), threading.Event(), threading.Event()
+    seen: dict[str, list[int]] = {}
+
+    def a() -> None:
+        with parallel.blas_limit(1):
+            a_in.set()
+            seen["a"] = _blas_threads()
+            b_in.wait(10)
+        a_out.set()
+
+    def b() -> None:
+        a_in.wait(10)
+        with parallel.blas_limit(1):
+            b_in.set()
+            a_out.wait(10)
+            seen["after_a_left"] = _blas_threads()
+
+    ta, tb = threading.Thread(target=a), threading.Thread(target=b)
+    ta.start()
+    tb.start()
+    ta.join()
+    tb.join()
+    assert seen["a"] and all(n == 1 for n in seen["a"] + seen["after_a_left"])
+    assert _blas_threads() == before
+    if any(n > 1 for n in before):   # the restore did something (more than one core here)
+        with parallel.blas_limit(1):
+            assert _blas_threads() != before
+        assert _blas_threads() == before
+
+
+def test_map_threads_keeps_order_runs_in_threads_and_raises():
+    assert parallel.map_threads(_square, iter(range(9)), 2, in_flight=1) == [x * x for x in range(9)]
+    names = parallel.map_threads(lambda _: threading.current_thread().name, range(4), 2)
+    assert all(n.startswith("polcam") for n in names)
+    started: list[int] = []
+
+    def fail_at_3(x: int) -> int:
+        started.append(x)
+        if x == 3:
+            raise ValueError("job 3")
+        return x
+
+    with pytest.raises(ValueError, match="job 3"):
+        parallel.map_threads(fail_at_3, iter(range(100)), 2, in_flight=1)
+    assert len(started) < 100            # jobs after the failure were not all started
+    pool, futures = parallel.submit_threads(_square, [3, 4], 2)
+    with pool:
+        assert [f.result() for f in futures] == [9, 16]
+
+
+@pytest.mark.parametrize("bad", [0, -3])
 def test_bad_worker_count(bad):
     with pytest.raises(ValueError):
         parallel.process_pool(bad)
+    with pytest.raises(ValueError):
+        parallel.map_threads(_square, [1], bad)
+    with pytest.raises(ValueError):
+        parallel.submit_threads(_square, [1], bad)

@@ -231,7 +231,8 @@ def run(data_dir: Path, methods: list[str] | None = None) -> list[dict[str, Any]
         ``reference_psnr``/``reference_ssim`` (image -> value, or None),
         ``reference_seconds`` (or None), ``deviation`` (mean absolute PSNR
         deviation from the reference in dB, or None), ``info`` (image -> the
-        method's info dict, without ``seconds``).
+        method's own info dict: without the dispatcher's ``method``, ``seconds``,
+        ``input_range`` and ``input_clipped``).
 
     Raises
     ------
@@ -259,7 +260,8 @@ def run(data_dir: Path, methods: list[str] | None = None) -> list[dict[str, Any]
             diffuse = res.diffuse.astype(np.float64)
             row["psnr"][name] = psnr(diffuse, truth)
             row["ssim"][name] = ssim(diffuse, truth)
-            row["info"][name] = {k: v for k, v in res.info.items() if k not in ("seconds", "method")}
+            row["info"][name] = {k: v for k, v in res.info.items()
+                                 if k not in ("seconds", "method", "input_range", "input_clipped")}
         row["mean_psnr"] = float(np.mean([row["psnr"][n] for n in IMAGES]))
         row["mean_ssim"] = float(np.mean([row["ssim"][n] for n in IMAGES]))
         row["mean_seconds"] = float(np.mean([row["seconds"][n] for n in IMAGES]))

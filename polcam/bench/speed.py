@@ -380,7 +380,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", help="PyTorch device for the tensor method's fast solver or polarized-residual "
                                     "(default: numpy)")
     p.add_argument("--tol", type=float, help="stopping tolerance of the fast solver")
-    p.add_argument("--workers", type=int, help="worker processes / threads (default: CPU count)")
+    p.add_argument("--workers", type=_positive_int, help="threads (default: CPU count)")
     p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
     p.add_argument("--json", type=Path, help="also write the rows to this file")
     p.add_argument("--maps", action="store_true",
@@ -388,6 +388,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(bilinear, default demosaicing) on one 2448 x 2048 frame, mono and colour, "
                         "as ratios (polcam.bench.maps)")
     p.add_argument("--repeat", type=int, default=5, help="--maps: best of this many runs (default 5)")
+
+
+def _positive_int(text: str) -> int:
+    """argparse type of ``--workers``: an integer of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
 
 
 def run_args(a: argparse.Namespace) -> int:

@@ -52,6 +52,7 @@ from polcam.frame import Frame
 from polcam.mosaic import ANGLES, Layout, parse_layout
 
 __all__ = [
+    "DARK_MAX_LEVEL",
     "MIN_ANGLES",
     "MAX_ANGLE_GAP_DEG",
     "calibrate_dark",
@@ -228,6 +229,18 @@ def _read_frames(frames: Frames, *, layout: str | Layout | None, base: Calibrati
         raise CalibrationError(f"no frames given for the {what} calibration")
 
 
+def _check_dark(counts: np.ndarray, stats: _Stats) -> None:
+    """Refuse a dark frame whose mean level is more than DARK_MAX_LEVEL of the range above black."""
+    mean = float(np.mean(counts))
+    span = stats.white_level - stats.black_level
+    above = (mean - stats.black_level) / span if span > 0 else 0.0
+    if above > DARK_MAX_LEVEL:
+        raise CalibrationError(
+            f"{stats.names[-1]}: not a dark frame: mean level {mean:.4g} counts, {above:.1%} of the range above "
+            f"the black level {stats.black_level:.4g}; expected at most {DARK_MAX_LEVEL:.0%} (cap the lens; a "
+            "camera that adds a black level the frames do not declare: give black_level in their sidecars)")
+
+
 def _num(v: Any) -> float | None:
     return None if v is None else float(v)
 
@@ -296,6 +309,12 @@ def _local_outliers(values: np.ndarray, sigma: float, *, floor: float) -> tuple[
 # dark
 # ---------------------------------------------------------------------------
 
+#: Largest mean level of a dark frame above its black level, as a share of the range (white level
+#: minus black level): a capped sensor reads its black level, dark current and read noise; more
+#: than this is light (a lit scene, a lens not capped) or a black level the frame does not declare.
+DARK_MAX_LEVEL = 0.05
+
+
 def calibrate_dark(frames: Frames, *, layout: str | Layout | None = None, base: Calibration | None = None,
                    hot_sigma: float = 6.0, camera_id: str | None = None,
                    check_settings: bool = True) -> Calibration:
@@ -332,7 +351,10 @@ def calibrate_dark(frames: Frames, *, layout: str | Layout | None = None, base: 
     Raises
     ------
     CalibrationError
-        Fewer than 2 frames, inconsistent frames, a bad ``hot_sigma``.
+        Fewer than 2 frames, inconsistent frames, a bad ``hot_sigma``, or a
+        frame that is not dark: its mean level more than :data:`DARK_MAX_LEVEL`
+        of the range above its black level (the message names the frame and
+        its mean level).
     """
     if not hot_sigma > 0:
         raise CalibrationError(f"hot_sigma {hot_sigma!r}: expected a positive number")
@@ -346,6 +368,7 @@ def calibrate_dark(frames: Frames, *, layout: str | Layout | None = None, base: 
             shift = float(np.median(counts))  # shifted sums keep the variance exact
             total = np.zeros_like(counts)
             total2 = np.zeros_like(counts)
+        _check_dark(counts, stats)
         d = counts - shift
         total += d
         total2 += d * d  # type: ignore[operator]

@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 
 from polcam import __version__
-from polcam.commands._args import run_command
+from polcam.commands._args import CommandParser, run_command
 
 __all__ = ["build_parser", "main", "reference_markdown", "run_command"]
 
@@ -36,7 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
         view,
     )
 
-    p = argparse.ArgumentParser(
+    p = CommandParser(
         prog="polcam",
         description="Polarization cameras: raw frames to polarization stacks, Stokes maps and "
                     "diffuse/specular layers.",

@@ -8,15 +8,20 @@ message on stderr; nothing done); 3 camera unavailable; 130 interrupted.
 from __future__ import annotations
 
 import argparse
+import difflib
 import json
+import re
 import sys
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, NoReturn
 
 from polcam.camera.base import TRIGGER_MODES, Camera, CameraSettingError
 from polcam.errors import CameraUnavailableError, PolcamError
 
 __all__ = [
     "CAMERA_SETTINGS",
+    "CommandParser",
+    "positive_int",
     "add_max_pixels_argument",
     "default_methods_text",
     "add_camera_arguments",
@@ -26,6 +31,59 @@ __all__ = [
     "parse_options",
     "run_command",
 ]
+
+
+def _suggest(word: str, candidates: Sequence[str]) -> str:
+    """`` (did you mean X?)`` for the closest candidate, or ``""``."""
+    close = difflib.get_close_matches(word, list(candidates), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+class CommandParser(argparse.ArgumentParser):
+    """The parser of polcam and of each of its commands: errors name the command and suggest.
+
+    A command's parser reports arguments it does not know itself (argparse
+    leaves them to the top-level parser, which prints its own usage): the
+    command's usage, ``unrecognized arguments``, and the closest of its flags
+    (``--methd`` -> ``--method``).  An invalid choice (a command, ``--format``,
+    ...) is followed by the closest valid one.  Exit status 2, before any work.
+    """
+
+    def parse_known_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
+                         namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
+        ns, extras = super().parse_known_args(args, namespace)
+        if extras and getattr(self, "_polcam_command", False):
+            flags = [s for a in self._actions for s in a.option_strings if s.startswith("--")]
+            hints = "".join(_suggest(e.split("=", 1)[0], flags) for e in extras if e.startswith("-"))
+            self.error(f"unrecognized arguments: {' '.join(extras)}{hints}")
+        return ns, extras
+
+    def error(self, message: str) -> NoReturn:
+        got = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if got:
+            message += _suggest(got.group(1), re.findall(r"'([^']*)'", got.group(2)))
+        super().error(message)
+
+    def add_subparsers(self, **kwargs: Any) -> Any:
+        kwargs.setdefault("parser_class", _CommandLevel)
+        return super().add_subparsers(**kwargs)
+
+
+class _CommandLevel(CommandParser):
+    """A command's (or sub-command's) parser: it reports its own unrecognized arguments."""
+
+    _polcam_command = True
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer of at least 1 (``--workers 0`` and ``-3`` are refused)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
 
 
 def parse_option(text: str, *, flag: str = "--option") -> tuple[str, Any]:

@@ -77,17 +77,18 @@ def add_capture_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="calibration file (polcam calibrate) of this camera at these settings: the first "
                         "frame is checked against it, the live view (S0, DoLP, AoLP, layers) uses the "
                         "corrected mosaic; saved frames stay raw. summary.json records the file and its SHA-256")
-    c.add_argument("--separate", default="default",
+    c.add_argument("--method", "--separate", dest="separate", default="default", metavar="METHOD",
                    help="separation method for the live layers, or none; default: the registry's default "
                         "for the sensor (polcam.separation.default_method, as process uses). imin runs on "
                         "every frame; other methods run on the newest frame whenever the last run is done")
-    c.add_argument("--separate-option", action="append", metavar="KEY=VALUE",
-                   help="an option of the --separate method, VALUE as JSON (repeatable), e.g. "
-                        "--separate-option device=cuda for the tensor method on a GPU")
+    c.add_argument("--option", "--separate-option", dest="separate_option", action="append",
+                   metavar="KEY=VALUE",
+                   help="an option of the separation method, VALUE as JSON (repeatable), e.g. "
+                        "--option device=cuda for the tensor method on a GPU")
     c.add_argument("--illuminant-each-frame", action="store_true",
                    help="re-estimate the illuminant on every separated frame; by default a method that "
                         "estimates it (polarized-residual, tensor) estimates it on the first one and keeps "
-                        "it (summary.json: separation_illuminant_held), unless --separate-option "
+                        "it (summary.json: separation_illuminant_held), unless --option "
                         "illuminant=[R, G, B] gives it")
     c.add_argument("--rerun", help="live view: spawn (a viewer; needs a display), serve (web viewer), "
                                    "or FILE.rrd")
@@ -145,7 +146,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         raise CameraSettingError(f"--duration {args.duration}: expected a positive number of seconds")
     separate = None if str(args.separate).lower() == "none" else args.separate
-    separate_options = parse_options(args.separate_option, flag="--separate-option")
+    separate_options = parse_options(args.separate_option, flag="--option")
     out: Path | None = None
     if not args.no_save:
         out = args.out or Path("captures") / time.strftime("%Y%m%d-%H%M%S")
@@ -215,7 +216,9 @@ def cmd_capture(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m polcam.capture ...``: the capture command on its own."""
-    parser = argparse.ArgumentParser(prog="polcam")
+    from polcam.commands._args import CommandParser
+
+    parser = CommandParser(prog="polcam")
     sub = parser.add_subparsers(dest="command", required=True)
     add_capture_parser(sub)
     args = parser.parse_args(["capture", *(sys.argv[1:] if argv is None else argv)])

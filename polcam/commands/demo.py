@@ -36,7 +36,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     else:
         print(f"1/3 capture: the replay camera plays the {n} frame(s) of {src} into {capture_dir}")
         code = _run("capture", ["--device", f"replay:{src}", "--frames", str(n), "--out", str(capture_dir),
-                     "--separate", "none", "--quiet"])
+                     "--method", "none", "--quiet"])
         if code:
             return code
     captured = raw_files_in(capture_dir)
@@ -92,6 +92,7 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     d.add_argument("--out", type=Path, default=Path("demo-output"), help="output folder (default demo-output)")
     d.add_argument("--input", type=Path, help="folder of raw frames (default: the bundled fixtures)")
     d.add_argument("--demosaic", choices=demosaic_methods, help="demosaicing method (default: the one process and stokes use)")
-    d.add_argument("--separate", help=f"separation method (default: {default_methods_text()})")
+    d.add_argument("--method", "--separate", dest="separate", metavar="METHOD",
+                   help=f"separation method (default: {default_methods_text()})")
     d.set_defaults(func=cmd_demo)
     return d

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from polcam.commands._args import add_max_pixels_argument, default_methods_text, parse_options
+from polcam.commands._args import add_max_pixels_argument, default_methods_text, parse_options, positive_int
 from polcam.commands._checks import check_run_options
 from polcam.errors import PolcamError
 from polcam.outdir import OutputLock, SummaryReserve, check_output
@@ -257,7 +257,7 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     pr.add_argument("--calibration", type=Path, help="calibration file (polcam calibrate)")
     pr.add_argument("--rerun", type=Path, metavar="FILE.rrd", help="also write the run as a Rerun "
                                                                     "recording, one time step per frame")
-    pr.add_argument("--workers", type=int, help="local worker processes (default: the number of cores, "
+    pr.add_argument("--workers", type=positive_int, help="local worker processes (default: the number of cores, "
                                                  "fewer where the available memory holds fewer workers "
                                                  "of the method's measured peak; one BLAS thread each)")
     pr.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask distributed cluster "

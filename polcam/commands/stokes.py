@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -17,10 +18,48 @@ from polcam.commands._args import add_max_pixels_argument
 from polcam.errors import PolcamError
 from polcam.sinks.files import FORMATS
 
-__all__ = ["add_parser", "cmd_stokes", "run_stokes"]
+__all__ = ["LIT_DOLP_BIAS", "add_parser", "cmd_stokes", "dolp_of_lit", "lit_floor", "run_stokes"]
 
 #: Products of ``polcam stokes`` whose values lie in [0, 1] (uint16 with ``--format tiff16``).
 UNIT_RANGE = ("i000", "i045", "i090", "i135", "dolp")
+
+#: Largest DoLP that noise alone may add to a pixel counted as lit (:func:`lit_floor`).
+LIT_DOLP_BIAS = 0.05
+
+
+def lit_floor(black_level: float, white_level: float) -> float:
+    """The least S0 of a lit pixel, on the normalised scale of a frame with these levels.
+
+    Noise of standard deviation sigma in each angle image gives ``(S1, S2)`` of
+    unpolarized light a length of mean ``sqrt(pi) sigma`` (a Rayleigh
+    distribution: S1 = I0 - I90 and S2 = I45 - I135 each have standard deviation
+    ``sqrt(2) sigma``), so its DoLP reads ``sqrt(pi) sigma / S0`` on average.
+    With sigma one quantisation step ``1 / (white - black)`` of the frame, a
+    pixel is lit when that bias is at most :data:`LIT_DOLP_BIAS`:
+    ``S0 >= sqrt(pi) / LIT_DOLP_BIAS / (white - black)`` (35 steps: 0.139 for
+    8-bit frames, 0.0087 for 12-bit ones, with S0 = (I0 + I45 + I90 + I135) / 2).
+    """
+    return math.sqrt(math.pi) / LIT_DOLP_BIAS / max(float(white_level) - float(black_level), 1.0)
+
+
+def dolp_of_lit(s0: np.ndarray, dolp: np.ndarray, floor: float) -> dict[str, float]:
+    """Mean and median DoLP over the lit pixels (``s0 >= floor``, per colour channel), and their share.
+
+    ``mean`` and ``median`` are NaN when no pixel is lit.
+    """
+    lit = np.asarray(s0) >= floor
+    vals = np.asarray(dolp)[lit]
+    share = float(lit.mean()) if lit.size else 0.0
+    if vals.size == 0:
+        return {"floor_s0": floor, "lit_share": share, "mean": math.nan, "median": math.nan}
+    return {"floor_s0": floor, "lit_share": share, "mean": float(vals.mean()), "median": float(np.median(vals))}
+
+
+def _dolp_text(d: dict[str, float]) -> str:
+    if d["lit_share"] == 0:
+        return f"no lit pixels (S0 >= {d['floor_s0']:.3g})"
+    return (f"DoLP over the lit pixels (S0 >= {d['floor_s0']:.3g}, {d['lit_share']:.0%} of the pixels): "
+            f"mean {d['mean']:.3f}, median {d['median']:.3f}")
 
 
 def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, method: str | None,
@@ -45,11 +84,14 @@ def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, meth
             frame = require_layout(read_frame(path, layout=layout, max_pixels=max_pixels), str(path))
             result = run_frame(frame, demosaic=method, resolution=resolution, stokes_products=PRODUCTS)
             target = out_dir / path.stem
+            lit = dolp_of_lit(result.products["s0"], result.products["dolp"],
+                              lit_floor(frame.black_level, frame.white_level))
             meta = {"input": str(path), "layout": str(frame.layout),
                     "demosaic": method or default_demosaic(frame.layout),
                     "resolution": resolution, "polcam_version": __version__,
                     "bit_depth": frame.bit_depth, "black_level": frame.black_level,
-                    "white_level": frame.white_level}
+                    "white_level": frame.white_level,
+                    "dolp_lit": {k: (None if math.isnan(v) else v) for k, v in lit.items()}}
             write_products(target, result.products, fmt=fmt, unit=UNIT_RANGE, metadata=meta)
             seconds = time.perf_counter() - t0
             meta["seconds"] = seconds
@@ -57,9 +99,8 @@ def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, meth
             write_meta(target, meta)
             done.append(meta)
             if not quiet:
-                d = result.products["dolp"]
-                print(f"{path.name}: {frame.layout} {result.stack.shape} -> {target}  "
-                      f"mean DoLP {float(np.mean(d)):.3f}  {seconds:.2f} s")
+                print(f"{path.name}: {frame.layout} {result.stack.shape} -> {target}  {_dolp_text(lit)}  "
+                      f"{seconds:.2f} s")
         except (PolcamError, OSError) as exc:
             failed.append({"input": str(path), "error": str(exc)})
             print(f"error: {exc}", file=sys.stderr)
@@ -94,7 +135,10 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
                                    "demosaic them and write, per frame, OUT/<stem>/ with i000..i135 "
                                    "(the four angle images), s0, s1, s2, dolp (0..1), aolp (radians in "
                                    "[0, pi) from the image x axis), residual ((I0+I90)-(I45+I135)) and "
-                                   "meta.json; OUT/summary.json lists done and failed frames.")
+                                   "meta.json; OUT/summary.json lists done and failed frames. Each frame's "
+                                   "line gives the DoLP of its lit pixels: S0 at least 35 quantisation "
+                                   "steps of the frame, where noise of one step adds at most 0.05 to the "
+                                   "DoLP (meta.json: dolp_lit).")
     s.add_argument("inputs", nargs="+", type=Path, help="raw frame files or folders")
     s.add_argument("-o", "--out", type=Path, required=True, help="output folder")
     s.add_argument("--layout", help="sensor layout (imx250mzr, imx250myr, mono:A,B,C,D, "

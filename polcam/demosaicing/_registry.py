@@ -177,7 +177,11 @@ def demosaic(
     numpy.ndarray
         float32 stack, (4, H, W) for mono or (4, H, W, 3) RGB for colour
         (H, W halved with ``resolution="cell"``), angles 0, 45, 90, 135; linear,
-        on the scale of the normalised input (not clipped).
+        on the scale of the normalised input, not clipped: the interpolation
+        overshoots [0, 1] near edges (eari reaches -0.11 and 1.12 on the
+        synthetic fixture frame), and the Stokes maps are computed from the
+        values as they are.  :func:`polcam.separate` takes it as it is and
+        clips to [0, 1] itself (docs/decisions/input-range.md).
 
     Raises
     ------

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import inspect
 import time
-from collections.abc import Callable, Sequence
+import typing
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,6 +13,7 @@ import numpy as np
 
 from polcam._names import lookup, ordered
 from polcam.errors import MethodError
+from polcam.separation._option_types import describe, matches
 
 __all__ = ["Separation", "MethodSpec", "register", "separate", "methods", "method_spec",
            "default_method", "input_form", "takes_illuminant", "estimated_illuminant"]
@@ -60,6 +62,9 @@ class MethodSpec:
     options
         The option names of a method whose function takes ``**options``
         (checked before a run); None: read from the function's signature.
+    option_types
+        Their types (typing expressions, :mod:`polcam.separation._option_types`)
+        where declared; a signature's annotations otherwise.
     """
 
     name: str
@@ -68,6 +73,7 @@ class MethodSpec:
     mono: bool = False
     reference: str = ""
     options: tuple[str, ...] | None = None
+    option_types: Mapping[str, Any] | None = None
 
 
 _METHODS: dict[str, MethodSpec] = {}
@@ -78,17 +84,20 @@ _ORDER = ("polarized-residual", "tensor", "tensor-tau", "tensor-plain", "imin", 
 
 
 def register(name: str, *, kind: str, mono: bool = False, reference: str = "",
-             options: Sequence[str] | None = None) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+             options: Sequence[str] | Mapping[str, Any] | None = None
+             ) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Decorator registering a separation function under ``name``.
 
-    ``options``: the option names, for a function that takes ``**options``.
+    ``options``: for a function that takes ``**options``, the option names, or
+    a mapping of each name to its type (then checked before a run too).
     """
     if kind not in ("single", "stack"):
         raise ValueError(f"method kind {kind!r}: expected 'single' or 'stack'")
+    types = dict(options) if isinstance(options, Mapping) else None
 
     def deco(fn: Callable[..., Any]) -> Callable[..., Any]:
         _METHODS[name] = MethodSpec(name, fn, kind, mono, reference,
-                                    None if options is None else tuple(options))
+                                    None if options is None else tuple(options), types)
         return fn
 
     return deco
@@ -137,10 +146,11 @@ def method_spec(name: str) -> MethodSpec:
     return lookup(_METHODS, name, what="separation method", order=_ORDER)
 
 
-def _as_input(images: Any) -> tuple[np.ndarray, str]:
+def _as_input(images: Any) -> tuple[np.ndarray, str, dict[str, Any]]:
+    """The input as float64 clipped to [0, 1], its form, and what the clipping did (for ``info``)."""
     arr = np.asarray(images)
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise MethodError(f"input of dtype {arr.dtype}: expected floats in [0, 1]")
+        raise MethodError(f"input of dtype {arr.dtype}: expected linear floats")
     if np.issubdtype(arr.dtype, np.integer):
         raise MethodError(
             f"input of integer dtype {arr.dtype}: expected linear floats in [0, 1] "
@@ -150,16 +160,18 @@ def _as_input(images: Any) -> tuple[np.ndarray, str]:
     # one pass each: NaN propagates through min and max, and an infinity is the min or the max
     lo, hi = (float(arr.min()), float(arr.max())) if arr.size else (0.0, 0.0)
     if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise MethodError("input contains NaN or infinite values: expected finite floats in [0, 1]")
-    if lo < -1e-6 or hi > 1 + 1e-6:
-        raise MethodError(f"input values span [{lo:.4g}, {hi:.4g}]: expected [0, 1]")
-    return np.clip(arr, 0.0, 1.0, out=np.empty(arr.shape, dtype=np.float64)), form
+        raise MethodError("input contains NaN or infinite values: expected finite floats")
+    out = np.clip(arr, 0.0, 1.0, out=np.empty(arr.shape, dtype=np.float64))
+    clipped = 0.0
+    if lo < 0.0 or hi > 1.0:
+        clipped = float(np.count_nonzero((arr < 0.0) | (arr > 1.0))) / arr.size
+    return out, form, {"input_range": [lo, hi], "input_clipped": clipped}
 
 
 def takes_illuminant(method: str) -> bool:
     """Whether ``method`` takes an RGB ``illuminant`` option (so an estimate can be passed back to it)."""
     try:
-        check_options(method, {"illuminant": [1.0, 1.0, 1.0]})
+        check_options(method, {"illuminant": [1.0, 1.0, 1.0]}, types=False)
     except MethodError:
         return False
     return True
@@ -179,13 +191,30 @@ def estimated_illuminant(info: dict[str, Any]) -> list[float] | None:
     return [float(v) for v in est]
 
 
-def check_options(method: str, options: dict[str, Any]) -> None:
-    """Refuse options ``method`` does not take (:class:`MethodError`), before running it."""
-    _check_options(method_spec(method), options)
+def check_options(method: str, options: dict[str, Any], *, types: bool = True) -> None:
+    """Refuse options ``method`` does not take, or (``types``) values not of the option's type.
+
+    Raises
+    ------
+    MethodError
+        Naming the option, and the options the method takes or the type expected.
+    """
+    _check_options(method_spec(method), options, types=types)
 
 
-def _check_options(spec: MethodSpec, options: dict[str, Any]) -> None:
-    """Refuse keyword options the method does not take (its declared ``options``, else its signature)."""
+def _option_types(spec: MethodSpec) -> Mapping[str, Any]:
+    """The declared types of a method's options, else its function's annotations ({} if unknown)."""
+    if spec.option_types is not None:
+        return spec.option_types
+    try:
+        return typing.get_type_hints(spec.fn)
+    except Exception:  # noqa: BLE001 - annotations that do not evaluate: no type checks
+        return {}
+
+
+def _check_options(spec: MethodSpec, options: dict[str, Any], *, types: bool = True) -> None:
+    """Refuse keyword options the method does not take (its declared ``options``, else its signature),
+    and values that are not of an option's type."""
     if spec.options is not None:
         accepted = list(spec.options)
     else:
@@ -203,6 +232,12 @@ def _check_options(spec: MethodSpec, options: dict[str, Any]) -> None:
             f"method {spec.name!r} takes no option {', '.join(map(repr, unknown))}; "
             f"its options: {', '.join(accepted) if accepted else 'none'}"
         )
+    if not types:
+        return
+    hints = _option_types(spec)
+    for key, value in options.items():
+        if key in hints and not matches(value, hints[key]):
+            raise MethodError(f"option {key}={value!r} of method {spec.name!r}: expected {describe(hints[key])}")
 
 
 def separate(images: Any, *, method: str | None = None, **options: Any) -> Separation:
@@ -212,8 +247,11 @@ def separate(images: Any, *, method: str | None = None, **options: Any) -> Separ
     ----------
     images
         (4, H, W, 3) polarization stack (angles 0, 45, 90, 135; RGB; linear
-        float in [0, 1]); (4, H, W) mono stack (methods that accept mono);
-        or (H, W, 3) RGB image (single-image methods only).
+        float); (4, H, W) mono stack (methods that accept mono); or (H, W, 3)
+        RGB image (single-image methods only).  Any finite values: they are
+        clipped to [0, 1] here (the one place polcam enforces that range), so
+        what :func:`polcam.demosaic` returns, whose interpolation overshoots
+        [0, 1] near edges, is taken as it is.
     method
         A name from :data:`polcam.METHODS`; None (the default): the best method for
         the input's form, :func:`default_method`.
@@ -224,16 +262,19 @@ def separate(images: Any, *, method: str | None = None, **options: Any) -> Separ
     -------
     Separation
         ``diffuse`` and ``specular`` float32 of one angle image's shape, with
-        ``diffuse + specular == mean over angles`` (or the image) and
-        ``0 <= diffuse <= mean``.
+        ``diffuse + specular == mean over angles`` of the clipped input (or the
+        clipped image) and ``0 <= diffuse <= that mean``.  ``info`` records
+        ``input_range`` ([min, max] of the input as given) and
+        ``input_clipped`` (the share of its values outside [0, 1]).
 
     Raises
     ------
     MethodError
-        Unknown method, or an input the method does not accept.
+        Unknown method; an input the method does not accept (its shape, an
+        integer dtype, NaN or infinite values).
     """
     spec = None if method is None else method_spec(method)
-    arr, form = _as_input(images)
+    arr, form, clipping = _as_input(images)
     if spec is None:
         spec = method_spec(default_method(form))
         method = spec.name
@@ -262,5 +303,5 @@ def separate(images: Any, *, method: str | None = None, **options: Any) -> Separ
         )
     diffuse = np.clip(np.nan_to_num(diffuse, nan=0.0, posinf=0.0, neginf=0.0), 0.0, reference)
     specular = reference - diffuse
-    full_info = {"method": method, "seconds": seconds, **dict(info)}
+    full_info = {"method": method, "seconds": seconds, **clipping, **dict(info)}
     return Separation(diffuse.astype(np.float32), specular.astype(np.float32), full_info)

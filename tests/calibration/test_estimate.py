@@ -259,3 +259,21 @@ def test_robust_sigma_of_a_gaussian_sample():
     x = np.random.default_rng(0).normal(3.0, 2.0, 100_000)
     x[:100] = 1e6  # outliers do not move it
     assert robust_sigma(x) == pytest.approx(2.0, rel=0.02)
+
+
+def test_dark_frames_that_are_not_dark_are_refused_by_name_and_level():
+    """A capped sensor reads its black level; 5 % of the range above it is light (DARK_MAX_LEVEL)."""
+    from polcam.calibration.estimate import DARK_MAX_LEVEL
+
+    assert DARK_MAX_LEVEL == 0.05
+    sensor = ImperfectSensor.random("imx250mzr", 16, 16, seed=12)
+    span = sensor.white_level - sensor.black_level
+    calibrate_dark(sensor.frames((0.08, 0, 0), n=2, rng=1))       # a dim glow, 4 % of the range: a dark
+    frames = sensor.frames((0, 0, 0), n=3, rng=1) + sensor.frames((0.12, 0, 0), n=1, rng=2)   # 6 %: lit
+    lit_mean = float(np.mean(frames[3].mosaic))
+    with pytest.raises(CalibrationError) as err:
+        calibrate_dark(frames)
+    msg = str(err.value)
+    assert msg.startswith("frame 3: not a dark frame: mean level ")
+    assert f"mean level {lit_mean:.4g} counts, {(lit_mean - sensor.black_level) / span:.1%} of the range" in msg
+    assert "expected at most 5%" in msg

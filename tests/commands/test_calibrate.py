@@ -373,23 +373,30 @@ needs_aravis = pytest.mark.skipif(not aravis_available(), reason="Aravis 0.8 is 
 @needs_aravis
 @pytest.mark.camera
 def test_dark_from_the_aravis_fake_camera(tmp_path, capsys):
+    """The Fake camera sends (x + y + frame id) mod 255 scaled by 1 + gain + log10(exposure / 10 ms),
+    clamped to 0..255: at 100 us the scale is -1, every pixel 0, a capped lens. At its default
+    exposure the bright ramp is refused as not dark, by its level, and no file is written."""
     out = tmp_path / "fake-dark.npz"
     assert run(["calibrate", "dark", "--device", "Fake_1", "--pixel-format", "Mono8", "--layout", "imx250mzr",
-                "--roi", "0", "0", "64", "32", "--frames", "4", "-o", str(out), "--keep", str(tmp_path / "k")]) == 0
+                "--roi", "0", "0", "64", "32", "--exposure", "100", "--frames", "4", "-o", str(out),
+                "--keep", str(tmp_path / "k")]) == 0
     assert "dark: 4 frames from camera Fake_1" in capsys.readouterr().out
     cal = load_calibration(out)
     assert cal.camera_id == "Fake_1" and cal.shape == (32, 64) and str(cal.layout) == "imx250mzr"
-    assert cal.roi == [0, 0, 64, 32] and cal.exposure_us is not None
+    assert cal.roi == [0, 0, 64, 32] and cal.exposure_us == pytest.approx(100)
     info = cal.stages["dark"]
     assert info["device"] == "Fake_1" and info["camera_id"] == "Fake_1" and info["camera"]["vendor"] == "Aravis"
     assert info["frames_good"] == 4 and info["frames_incomplete"] == 0
     kept = sorted((tmp_path / "k").glob("*.raw"))
     assert len(kept) == 4
-    for path in kept:  # the camera's bytes: the fake's ramp (x + y + frame id) mod 255
-        side = read_sidecar(path)
-        y, x = np.mgrid[0:32, 0:64]
-        ramp = ((x + y + side["frame_id"]) % 255).astype(np.uint8)
-        np.testing.assert_array_equal(np.frombuffer(path.read_bytes(), np.uint8).reshape(32, 64), ramp)
+    for path in kept:  # the camera's bytes: the scaled ramp, clamped to 0
+        assert np.frombuffer(path.read_bytes(), np.uint8).reshape(32, 64).max() == 0
+    assert np.all(cal.maps["dark"] == 0)
+    lit = tmp_path / "lit-dark.npz"
+    with pytest.raises(CalibrationError, match=r"not a dark frame: mean level \d+(\.\d+)? counts, \d+\.\d% of the range"):
+        run(["calibrate", "dark", "--device", "Fake_1", "--pixel-format", "Mono8", "--layout", "imx250mzr",
+             "--roi", "0", "0", "64", "32", "--frames", "4", "-o", str(lit)])
+    assert not lit.exists()
 
 
 def test_standalone_command_exits_3_for_a_camera_that_is_not_there(tmp_path, capsys):
@@ -398,3 +405,17 @@ def test_standalone_command_exits_3_for_a_camera_that_is_not_there(tmp_path, cap
     rc = main(["dark", "--device", f"replay:{tmp_path / 'missing'}", "--frames", "2", "-o", str(out)])
     assert rc == 3 and "does not exist" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_dark_of_lit_frames_is_refused_naming_the_frame_and_its_level(folders, tmp_path, capsys):
+    """The flat frames (a lit, uniform field) given as darks: refused, nothing written."""
+    from polcam.cli import main as polcam_main
+
+    root, sensor = folders
+    first = sorted((root / "flat").glob("*.png"))[0]
+    mean = float(np.mean(read_frame(first).mosaic))
+    target = tmp_path / "dark.npz"
+    assert polcam_main(["calibrate", "dark", str(root / "flat"), "-o", str(target)]) == 2
+    err = capsys.readouterr().err
+    assert f"{first}: not a dark frame: mean level {mean:.4g} counts" in err
+    assert not target.exists()

@@ -34,10 +34,19 @@ def test_bad_values_are_refused():
     x[0, 0, 0, 0] = np.nan
     with pytest.raises(MethodError, match="NaN"):
         separate(x, method="imin")
-    with pytest.raises(MethodError, match=r"expected \[0, 1\]"):
-        separate(np.full((4, 4, 4, 3), 3.0), method="imin")
     with pytest.raises(MethodError, match="integer"):
         separate(np.zeros((4, 4, 4, 3), np.uint8), method="imin")
+
+
+def test_out_of_range_values_are_clipped_and_recorded():
+    x = np.full((4, 4, 4, 3), 0.5)
+    x[:, 0] = 3.0                       # one row of each angle image above 1
+    x[:, 1] = -0.2                      # one below 0
+    res = separate(x, method="imin")
+    assert res.info["input_range"] == [-0.2, 3.0] and res.info["input_clipped"] == 0.5
+    np.testing.assert_array_equal(res.diffuse + res.specular, np.clip(x, 0, 1).mean(axis=0).astype(np.float32))
+    inside = separate(np.full((4, 4, 4, 3), 0.5), method="imin")
+    assert inside.info["input_clipped"] == 0.0 and inside.info["input_range"] == [0.5, 0.5]
 
 
 @pytest.fixture
@@ -100,3 +109,29 @@ def test_unknown_options_are_refused_by_name(toy_methods):
         separate(np.zeros((4, 4, 4, 3)), method="imin", max_iter=5)
     with pytest.raises(MethodError, match="its options: gain"):
         separate(np.zeros((4, 4, 3)), method="_toy_single", gian=2.0)
+
+
+def test_option_types_are_checked_before_the_method_runs():
+    calls = []
+
+    def fn(image, *, levels: int = 8, scale: float = 1.0, name: str | None = None):
+        calls.append((levels, scale, name))
+        return image
+
+    register("_toy_typed", kind="single")(fn)
+    register("_toy_declared", kind="stack", options={"max_iter": int})(lambda st, **o: st.mean(axis=0))
+    try:
+        img = np.full((4, 4, 3), 0.5)
+        with pytest.raises(MethodError, match=r"option levels='abc' of method '_toy_typed': expected an integer"):
+            separate(img, method="_toy_typed", levels="abc")
+        with pytest.raises(MethodError, match=r"option scale=None of method '_toy_typed': expected a number"):
+            separate(img, method="_toy_typed", scale=None)
+        with pytest.raises(MethodError, match=r"option max_iter=2.5 of method '_toy_declared'"):
+            separate(np.full((4, 4, 4, 3), 0.5), method="_toy_declared", max_iter=2.5)
+        assert calls == []
+        separate(img, method="_toy_typed", levels=3, scale=2, name=None)     # an int is a valid float
+        assert calls == [(3, 2, None)]
+    finally:
+        del _METHODS["_toy_typed"], _METHODS["_toy_declared"]
+    with pytest.raises(MethodError, match=r"option max_iter='abc' of method 'tensor': expected an integer"):
+        separate(np.full((4, 8, 8, 3), 0.5), method="tensor", max_iter="abc")

@@ -39,8 +39,8 @@ arrays, or PyTorch tensors with ``device=`` (the ``torch`` extra).
 from __future__ import annotations
 
 import functools
+from typing import Any
 
-from polcam.parallel import start_workers
 from polcam.separation._registry import register
 from polcam.separation.tensor.driver import initial_diffuse, separate_tensor, warm_up
 from polcam.separation.tensor.ialm import ialm, solve_tiles
@@ -63,8 +63,9 @@ from polcam.separation.tensor.options import (
     DEVICE_BATCH,
     EXACT_TOL,
     FAST_TOL,
-    INIT_PROCESS_PIXELS,
+    INIT_PARALLEL_PIXELS,
     MAX_AUTO_WORKERS,
+    OPTION_TYPES,
     VARIANTS,
 )
 from polcam.separation.tensor.tiling import blend, tile_spans, tile_windows, tiled
@@ -87,7 +88,6 @@ __all__ = [
     "solve_tiles",
     "tile_spans",
     "tile_windows",
-    "start_workers",
     "blend",
     "tiled",
     "separate_tensor",
@@ -98,7 +98,7 @@ __all__ = [
     "AUTO_TILE",
     "DEVICE_BATCH",
     "MAX_AUTO_WORKERS",
-    "INIT_PROCESS_PIXELS",
+    "INIT_PARALLEL_PIXELS",
 ]
 
 REFERENCE = (
@@ -107,6 +107,6 @@ REFERENCE = (
 )
 
 for _variant in VARIANTS:
-    register(_variant, kind="stack", reference=REFERENCE, options=tuple(DEFAULTS))(
+    register(_variant, kind="stack", reference=REFERENCE, options={k: OPTION_TYPES.get(k, Any) for k in DEFAULTS})(
         functools.partial(separate_tensor, variant=_variant)
     )

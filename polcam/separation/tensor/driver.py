@@ -18,9 +18,10 @@ Steps (docs/algorithm.md, section 4, states each as implemented):
    light does).
 
 Only where the work runs differs between backends: numpy runs the initial
-diffuse and the tiles in worker processes (:mod:`polcam.parallel`) and one
-tile's Fourier slices in threads; PyTorch runs every step on its device and the
-tiles in batches.
+diffuse, the tiles, and one tile's Fourier slices in threads of this process
+(:mod:`polcam.parallel`: no worker processes, so a call works from any caller),
+with BLAS at one thread for the whole call; PyTorch runs every step on its
+device and the tiles in batches.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import numpy as np
 
 from polcam._xp import namespace
 from polcam.errors import MethodError
-from polcam.parallel import blas_limit, map_processes, submit_processes
+from polcam.parallel import blas_limit, map_threads, submit_threads
 from polcam.separation._common import finish_diffuse
 from polcam.separation._registry import method_spec
 from polcam.separation.tensor.ialm import solve_tiles
@@ -44,7 +45,7 @@ from polcam.separation.tensor.operators import (
     tau_weights,
     white_divisor,
 )
-from polcam.separation.tensor.options import DEVICE_BATCH, INIT_PROCESS_PIXELS, Plan, default_lam, resolve
+from polcam.separation.tensor.options import DEVICE_BATCH, INIT_PARALLEL_PIXELS, Plan, default_lam, resolve
 from polcam.separation.tensor.tiling import blend, tile_batch, tile_spans
 from polcam.polarimetry import imin
 
@@ -73,8 +74,8 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
         sharing at least that many pixels, each its own tensor problem, blended
         (``tile=None``: one tile for the exact solver; for the fast one, one tile
         up to ``AUTO_UNTILED_PIXELS`` pixels, tiles of at most ``AUTO_TILE``
-        above); ``workers``: worker processes for the initial diffuse and the
-        tiles, threads for the Fourier slices of one tile; ``device``: None
+        above); ``workers``: threads for the initial diffuse, the tiles and
+        the Fourier slices of one tile (the answer does not depend on it); ``device``: None
         (numpy) or a PyTorch device such as ``"cuda"`` or ``"cpu"`` (needs the
         ``torch`` extra): every step then runs on it (an ``init`` other than
         Yang'10 runs in numpy and is copied over), with the same answer to
@@ -94,6 +95,17 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
         residuals of the tile that took longest).
     """
     plan = resolve(np.shape(stack), variant, options)
+    if plan.opt["device"] is not None:
+        return _separate(stack, plan)
+    # one BLAS thread for the whole call, whose parts run in threads: OpenBLAS' threaded complex
+    # SVD of these slice sizes was 12 times slower than the single-threaded one on the 2-core
+    # machine (docs/benchmarks.md); the limit is process-wide, so it is held once, around it all
+    with blas_limit(1):
+        return _separate(stack, plan)
+
+
+def _separate(stack: np.ndarray, plan: Plan) -> tuple[np.ndarray, dict[str, Any]]:
+    """:func:`separate_tensor` with checked options."""
     opt = plan.opt
     h, w = plan.shape
     device = opt["device"]
@@ -121,10 +133,10 @@ def separate_tensor(stack: np.ndarray, *, variant: str = "tensor", **options: An
     # the fast solver works in its precision from here: representation images and initial diffuse too
     work = opt["precision"] if opt["solver"] == "fast" else "float64"
     xw = xp.astype(x, xp.dtype_of(work))
-    # worker processes only where the runs are long enough to pay for starting them
-    # (and not beyond INIT_PROCESS_PIXELS: a Yang'10 run on a 5 Mpixel image held ~1.4 GB)
-    init_workers = plan.workers if 256 * 256 <= h * w <= INIT_PROCESS_PIXELS else 1
-    # 3'. with a shared initial diffuse, the four Yang'10 runs start now (in worker processes)
+    # threads only where the runs are long enough to outweigh the Python between numpy calls
+    # (and not beyond INIT_PARALLEL_PIXELS: a Yang'10 run on a 5 Mpixel image held ~1.4 GB)
+    init_workers = plan.workers if 256 * 256 <= h * w <= INIT_PARALLEL_PIXELS else 1
+    # 3'. with a shared initial diffuse, the four Yang'10 runs start now (in threads)
     # while the representations are found, which they do not need
     pending = _Initial(xw[None], init=opt["init"], workers=init_workers) if plan.shared else None
 
@@ -199,24 +211,20 @@ def _solve(d0: Any, tw: Any, plan: Plan) -> tuple[np.ndarray, float, list[dict[s
         out = blend((h, w), plan.tile, plan.overlap, xp.torch.cat(results))
         return xp.to_numpy(out), lam_t, records
     if plan.one_tile:
-        # one BLAS thread: OpenBLAS' threaded complex SVD of these slice sizes was 12 times slower
-        # than the single-threaded one on the 2-core machine (docs/benchmarks.md); the Fourier
-        # slices run in parallel threads instead
-        with blas_limit(1):
-            res, records = solve_tiles(*batch(ys, xs), threads=plan.workers, **kw)
+        # the Fourier slices run in parallel threads
+        res, records = solve_tiles(*batch(ys, xs), threads=plan.workers, **kw)
         return res[0], lam_t, records
     jobs = ((*batch([y], [x]), kw) for y in ys for x in xs)
     if plan.workers > 1:
-        out = map_processes(_tile_job, jobs, plan.workers)
+        out = map_threads(_tile_job, jobs, plan.workers)
     else:
-        with blas_limit(1):
-            out = [_tile_job(j) for j in jobs]
+        out = [_tile_job(j) for j in jobs]
     records = [rec for _, rec in out]
     return blend((h, w), plan.tile, plan.overlap, [r for r, _ in out]), lam_t, records
 
 
 def _tile_job(args: tuple[Any, Any, dict[str, Any]]) -> tuple[np.ndarray, dict[str, Any]]:
-    """One tile's problem (here or in a worker process): its diffuse in float32 and its record."""
+    """One tile's problem (in this thread or a worker thread): its diffuse in float32 and its record."""
     d, tau, kw = args
     res, recs = solve_tiles(d, tau, **kw)
     return np.asarray(res[0], dtype=np.float32), recs[0]
@@ -226,7 +234,7 @@ class _Initial:
     """The initial diffuse of (n, 4, H, W, 3) images, started now, collected by :meth:`result`.
 
     numpy with ``workers > 1``: the ``4 n`` single-image runs start at once in
-    worker processes.  A torch tensor with ``init="yang10"``: Yang'10 on its
+    ``workers`` threads.  A torch tensor with ``init="yang10"``: Yang'10 on its
     device when collected.  Otherwise: :func:`initial_diffuse` when collected.
     """
 
@@ -236,7 +244,7 @@ class _Initial:
         self.background = None
         if self.xp.name == "numpy" and workers > 1 and init_jobs(images) > 1:
             n, na = images.shape[:2]
-            self.background = submit_processes(
+            self.background = submit_threads(
                 _init_job, [(init, images[i, a], {}) for i in range(n) for a in range(na)], workers)
 
     def cancel(self) -> None:
@@ -278,8 +286,8 @@ def initial_diffuse(reps: np.ndarray, *, init: str = "yang10", workers: int = 1,
     init
         A registered single-image method (the paper: Yang'10).
     workers
-        Worker processes running the ``4 n4`` independent single-image runs (the
-        result does not depend on it).
+        Threads running the ``4 n4`` independent single-image runs (the result
+        does not depend on it).
 
     Returns
     -------
@@ -293,9 +301,7 @@ def initial_diffuse(reps: np.ndarray, *, init: str = "yang10", workers: int = 1,
     jobs = [(i, a) for i in range(reps.shape[0]) for a in range(reps.shape[1])]
     args = ((init, reps[i, a], options) for i, a in jobs)
     if workers > 1 and len(jobs) > 1:
-        # processes: the single-image methods are numpy/OpenCV code that holds the GIL
-        # often enough that threads did not run faster than one
-        res = map_processes(_init_job, args, workers)
+        res = map_threads(_init_job, args, workers)
     else:
         res = map(_init_job, args)
     for (i, a), d in zip(jobs, res):
@@ -304,7 +310,7 @@ def initial_diffuse(reps: np.ndarray, *, init: str = "yang10", workers: int = 1,
 
 
 def _init_job(args: tuple[str, Any, dict[str, Any]]) -> Any:
-    """One single-image run of the initial diffuse (here, in a worker process or on a device).
+    """One single-image run of the initial diffuse (in this thread, a worker thread or on a device).
 
     A numpy image gives float64 numpy; a tensor (a method of :data:`DEVICE_INITS`) a
     float64 tensor on its device.

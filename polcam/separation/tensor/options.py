@@ -9,23 +9,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Optional, Union
 
 import numpy as np
 
 from polcam.errors import MethodError
 from polcam.parallel import MAX_AUTO_WORKERS, default_workers
+from polcam.separation._option_types import describe, matches
 from polcam.separation._tsvt import SOLVERS
 
 __all__ = [
     "DEFAULTS",
+    "OPTION_TYPES",
     "EXACT_TOL",
     "FAST_TOL",
     "AUTO_UNTILED_PIXELS",
     "AUTO_TILE",
     "DEVICE_BATCH",
     "MAX_AUTO_WORKERS",
-    "INIT_PROCESS_PIXELS",
+    "INIT_PARALLEL_PIXELS",
     "VARIANTS",
     "Plan",
     "resolve",
@@ -58,7 +60,7 @@ DEFAULTS: dict[str, Any] = {
                         # (square) or a (height, width) pair asks for tiles of that size
     "overlap": 6,       # least overlap of neighbouring tiles (pixels), blended linearly; 2 left
                         # visible seams on real stacks (docs/algorithm.md, Fast solver, item 7)
-    "workers": None,    # processes/threads for the initial diffuse, the tiles and the slices;
+    "workers": None,    # threads for the initial diffuse, the tiles and the slices;
                         # None: polcam.parallel.default_workers() (the CPU count, at most 8)
     "device": None,     # None: numpy; "cpu", "cuda", ...: the PyTorch backend (torch extra)
     "precision": "float32",  # working precision of the fast solver: "float32" or "float64"
@@ -68,6 +70,17 @@ DEFAULTS: dict[str, Any] = {
     "seed": 0,
     "imin_bound": False,  # True: clip the diffuse to [0, Imin] of the input (polcam's option, not the
                           # paper's; it costs dB where diffuse light is polarized: docs/benchmarks.md)
+}
+
+#: The type of each option (checked by ``polcam.separate`` before any work).
+OPTION_TYPES: dict[str, Any] = {
+    "n4": int, "block": int, "threshold": float, "alpha": float, "beta": float, "tau_floor": float,
+    "gamma": float, "lam": Optional[float], "rho": float, "mu0": Optional[float], "mu_max": float,
+    "tol": Optional[float], "max_iter": int, "init": str,
+    "illuminant": Union[str, tuple[float, float, float]], "solver": str,
+    "tile": Union[int, tuple[int, int], None], "overlap": int, "workers": Optional[int],
+    "device": Optional[str], "precision": str, "shared_init": Optional[bool], "seed": int,
+    "imin_bound": bool,
 }
 
 #: The paper's stopping tolerance, kept by the exact solver.
@@ -86,9 +99,9 @@ AUTO_TILE = (96, 32)
 #: Tiles per IALM call of the PyTorch backend on a CPU (on a GPU: as many as fit in a third of
 #: its free memory).
 DEVICE_BATCH = 64
-#: Largest image whose initial diffuse runs in worker processes (the 1224 x 1024 cell-resolution
-#: frame does; a 2448 x 2048 full-resolution one runs in this process to bound memory).
-INIT_PROCESS_PIXELS = 2_500_000
+#: Largest image whose initial diffuse runs in parallel threads (the 1224 x 1024 cell-resolution
+#: frame does; a 2448 x 2048 full-resolution one runs its Yang'10 runs one at a time to bound memory).
+INIT_PARALLEL_PIXELS = 2_500_000
 #: The registered variants: (tau weights used, phase term used).
 VARIANTS: dict[str, tuple[bool, bool]] = {
     "tensor": (True, True),          # eq. 4
@@ -116,7 +129,7 @@ class Plan:
     shared
         Whether the initial diffuse is computed once on the angle images.
     workers
-        Worker processes / threads.
+        Threads.
     tile
         (height, width) of the tiles; the image's shape for one tile.
     overlap
@@ -156,6 +169,10 @@ def resolve(shape: tuple[int, ...], variant: str, options: dict[str, Any]) -> Pl
             f"unknown option(s) {', '.join(sorted(unknown))} for method {variant!r}; "
             f"expected: {', '.join(DEFAULTS)}"
         )
+    for key, value in options.items():
+        if key in OPTION_TYPES and not matches(value, OPTION_TYPES[key]):
+            raise MethodError(f"option {key}={value!r} of method {variant!r}: "
+                              f"expected {describe(OPTION_TYPES[key])}")
     opt = {**DEFAULTS, **options}
     if opt["solver"] not in SOLVERS:
         raise MethodError(f"solver {opt['solver']!r}: expected one of {', '.join(SOLVERS)}")
