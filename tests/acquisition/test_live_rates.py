@@ -5,6 +5,10 @@ logged) and layers (frames separated) per second, in the summary, printed, and p
 from __future__ import annotations
 
 import json
+import os
+import sys
+import threading
+import time
 from collections import defaultdict
 from pathlib import Path
 
@@ -107,3 +111,26 @@ def test_capture_prints_the_live_rates(tmp_path, capsys):
     n_maps = int(line.split("maps ")[1].split("(")[1].split(" frames")[0])
     n_layers = int(line.split("layers ")[1].split("(")[1].split(" frames")[0])
     assert 1 <= n_layers == n_maps <= 2
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread niceness is Linux's")
+def test_the_separation_thread_runs_below_the_maps():
+    from polcam.acquisition.live import SEPARATION_NICENESS, LiveProcessor
+    from polcam.mosaic import parse_layout
+
+    live = LiveProcessor(parse_layout("imx250myr"), separate="wen21", workers=1)
+    try:
+        sep = live._sep_thread
+        assert sep is not None
+        base = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        want = min(19, base + SEPARATION_NICENESS)
+        for _ in range(200):  # the thread lowers its own priority as it starts
+            if os.getpriority(os.PRIO_PROCESS, sep.native_id) == want:
+                break
+            time.sleep(0.01)
+        assert os.getpriority(os.PRIO_PROCESS, sep.native_id) == want
+        (maps_thread,) = live._threads
+        assert os.getpriority(os.PRIO_PROCESS, maps_thread.native_id) == base
+        assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == base
+    finally:
+        live.close()
