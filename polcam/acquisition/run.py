@@ -241,7 +241,9 @@ def run_capture(
         ``frames_incomplete``, ``frames_dropped``, ``frames_received``,
         ``frames_saved``, ``frames_save_failed``, ``frames_unsaved``,
         ``frames_left_at_stop``, ``frames_processed``, ``frames_skipped``, ``separations``,
-        ``separations_skipped``, ``separation_illuminant_held``, ``duration_s``, ``fps``, ``stop_reason``,
+        ``separations_skipped``, ``separation_illuminant_held``, ``duration_s``, ``fps``, ``maps_frames``,
+        ``maps_fps``, ``layers_frames``, ``layers_fps`` (frames whose maps were computed, frames
+        separated, and each per second over ``duration_s``), ``stop_reason``,
         ``files``, ``write_error``, ``summary_file`` (where the summary was
         written; see above), the camera's ``stream`` statistics, and
         ``calibration`` / ``calibration_sha256`` (the calibration file and its
@@ -494,6 +496,11 @@ def run_capture(
         "duration_s": elapsed,
         "fps": received / elapsed,
         "fps_processed": (live.processed / elapsed) if live else 0.0,
+        # the two live rates over the capture: maps computed (and logged), frames separated
+        "maps_frames": live.processed if live else 0,
+        "maps_fps": (live.processed / elapsed) if live else 0.0,
+        "layers_frames": live.separations if live else 0,
+        "layers_fps": (live.separations / elapsed) if live else 0.0,
         "live_seconds_per_frame": (live.seconds / live.processed) if live and live.processed else None,
         "save_seconds_per_frame": (saver.seconds / len(saver.saved)) if saver and saver.saved else None,
         "by_status": st.by_status,

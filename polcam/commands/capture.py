@@ -117,6 +117,10 @@ def _print_summary(summary: dict[str, Any]) -> None:
     line = ", ".join(f"{k[7:] if k.startswith('frames_') else k} {summary[k]}" for k in keys)
     print(f"capture stopped ({summary['stop_reason']}) after {summary['duration_s']:.1f} s: {line}; "
           f"{summary['fps']:.1f} fps received, {summary['fps_processed']:.1f} fps processed")
+    if summary.get("maps_frames") or summary.get("separation"):
+        layers = (f", layers {summary['layers_fps']:.2f} fps ({summary['layers_frames']} frames, "
+                  f"{summary['separation']})" if summary.get("separation") else "")
+        print(f"live rates: maps {summary['maps_fps']:.1f} fps ({summary['maps_frames']} frames){layers}")
     if summary.get("out"):
         where = summary.get("summary_file")
         if where and Path(where).parent == Path(summary["out"]):

@@ -110,12 +110,13 @@ def test_sink_writes_the_entities_of_the_design(tmp_path):
         sink.log_raw(i, 1000 + i, mosaic, bit_depth=12)
         sink.log_polarization(i, 1000 + i, s0=2 * ic, dolp=dolp, aolp=aolp)
         sink.log_layers(i, 1000 + i, diffuse=ic * 0.5, specular=ic * 0.5)
-        sink.log_stats(i, 1000 + i, fps=20.0, dropped=i, incomplete=0, separation_seconds=0.01)
+        sink.log_stats(i, 1000 + i, fps=20.0, dropped=i, incomplete=0, separation_seconds=0.01,
+                       maps_fps=15.0, layers_fps=1.5)
     sink.close()
     data = _read(path)
     assert set(ENTITIES.values()) <= set(data)
     for role in ("s0", "dolp", "aolp", "diffuse", "specular", "fps", "dropped", "incomplete",
-                 "separation_seconds"):
+                 "separation_seconds", "maps_fps", "layers_fps"):
         assert data[ENTITIES[role]]["frames"] == {0, 1, 2}, role
     assert data[ENTITIES["raw"]]["frames"] == {0, 2}  # every second frame
     # images are 8-bit at half the size given; DoLP is a class image with its palette static
