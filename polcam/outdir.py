@@ -17,7 +17,6 @@ disk that fills during the run still gets its summary.
 
 from __future__ import annotations
 
-import errno
 import json
 import os
 import socket
@@ -30,6 +29,7 @@ from typing import Any
 
 from polcam import __version__
 from polcam.errors import FrameWriteError, PolcamError
+from polcam.io.atomic import os_reason, probe_folder
 
 try:
     import fcntl
@@ -41,7 +41,6 @@ __all__ = ["LOCK_NAME", "OutputLock", "OutputLocked", "SummaryReserve", "check_o
 
 LOCK_NAME = ".polcam-process.lock"
 _RESERVE_NAME = ".polcam-summary.reserve"
-_PROBE_BYTES = 4096
 
 
 class OutputLocked(PolcamError):
@@ -174,11 +173,6 @@ class OutputLock:
         self.release()
 
 
-def _reason(exc: OSError) -> str:
-    name = errno.errorcode.get(exc.errno or 0)
-    return f"{exc.strerror or exc}" + (f" ({name})" if name else "")
-
-
 def check_output(folder: str | os.PathLike[str], *, frame_bytes: int = 0) -> None:
     """Make sure ``folder`` exists, can be written and has room for ``frame_bytes``, before any work.
 
@@ -190,30 +184,9 @@ def check_output(folder: str | os.PathLike[str], *, frame_bytes: int = 0) -> Non
         the folder and the reason.
     """
     folder = Path(folder)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise FrameWriteError(f"cannot create the output folder: {_reason(exc)}", path=folder) from exc
-    probe = folder / f".polcam-write-test-{os.getpid()}"
-    try:
-        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        try:
-            os.write(fd, b"\0" * _PROBE_BYTES)
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-    except OSError as exc:
-        raise FrameWriteError(f"cannot write to the output folder: {_reason(exc)}", path=folder) from exc
-    finally:
-        try:
-            probe.unlink()
-        except OSError:
-            pass
-    try:
-        st = os.statvfs(folder)
-    except OSError:  # pragma: no cover - no statvfs: the writes will say
+    free = probe_folder(folder)
+    if free is None:  # pragma: no cover - no statvfs: the writes will say
         return
-    free = st.f_bavail * st.f_frsize
     if frame_bytes > free:
         raise FrameWriteError(
             f"no room for one frame: its outputs take about {frame_bytes / 1e6:.1f} MB and "
@@ -241,7 +214,7 @@ class SummaryReserve:
                 os.fsync(fh.fileno())
         except OSError as exc:
             self.release()
-            raise FrameWriteError(f"no room for the run's summary ({size} bytes): {_reason(exc)}",
+            raise FrameWriteError(f"no room for the run's summary ({size} bytes): {os_reason(exc)}",
                                   path=Path(folder)) from exc
 
     def release(self) -> None:

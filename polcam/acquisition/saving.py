@@ -22,7 +22,6 @@ frames handed to it afterwards, and those still queued, are counted as
 from __future__ import annotations
 
 import contextlib
-import errno
 import os
 import queue
 import threading
@@ -32,6 +31,7 @@ from typing import Any
 
 from polcam.errors import PolcamError
 from polcam.frame import Frame
+from polcam.io.atomic import os_reason, probe_folder
 
 __all__ = ["SAVE_FORMATS", "FrameSaver", "check_writable", "clean_stale", "existing_frames", "frame_name",
            "os_reason", "write_captured_frame"]
@@ -97,22 +97,6 @@ def write_captured_frame(path: Path, frame: Frame, *, extra: dict[str, Any] | No
     return path
 
 
-def os_reason(exc: BaseException) -> str:
-    """The system's reason of a failed write, e.g. ``No space left on device (ENOSPC)``."""
-    from polcam.errors import PolcamError
-
-    if isinstance(exc, OSError):
-        reason = exc.strerror or str(exc)
-        name = errno.errorcode.get(exc.errno or -1)
-        return f"{reason} ({name})" if name else reason
-    if isinstance(exc, PolcamError):
-        cause = exc.__cause__
-        if isinstance(cause, OSError):
-            return os_reason(cause)
-        return getattr(exc, "reason", None) or str(exc)
-    return str(exc)
-
-
 def check_writable(out: Path, *, need_bytes: int = 1 << 20) -> Path:
     """Create ``out`` if needed and make sure frames can be written there, before any frame is taken.
 
@@ -134,31 +118,11 @@ def check_writable(out: Path, *, need_bytes: int = 1 << 20) -> Path:
     from polcam.errors import FrameWriteError
 
     out = Path(out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise FrameWriteError(f"cannot create the output folder: {os_reason(exc)}", path=out) from None
-    if not out.is_dir():
-        raise FrameWriteError("the output path is not a folder", path=out)
-    probe = out / f".{_FRAME_PREFIX}probe_{os.getpid()}_{threading.get_ident()}"
-    try:
-        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        try:
-            block = b"\0" * 65536
-            if os.write(fd, block) != len(block):
-                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-    except OSError as exc:
-        raise FrameWriteError(f"cannot write frames into the output folder: {os_reason(exc)}", path=out) from None
-    finally:
-        with contextlib.suppress(OSError):
-            probe.unlink()
-    try:
-        st = os.statvfs(out)
-    except (OSError, AttributeError):  # no statvfs (Windows): the probe has to do
-        return out
+    free = probe_folder(out, cannot="cannot write frames into the output folder")
+    if free is not None and free < need_bytes:
+        raise FrameWriteError(f"cannot write frames into the output folder: only {free} bytes free on its disk, "
+                              f"expected at least {need_bytes}", path=out)
+    return out
     free = st.f_bavail * st.f_frsize
     if free < need_bytes:
         raise FrameWriteError(f"cannot write frames into the output folder: only {free} bytes free on its disk, "

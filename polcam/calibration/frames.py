@@ -323,7 +323,7 @@ class FrameGrabber:
             name = f"pol_{seq:05d}_{float(angle) % 180.0:07.3f}deg.raw"
             extra = {ANGLE_KEY: float(angle)}
         assert self.keep is not None
-        from polcam.acquisition.saving import os_reason
+        from polcam.io.atomic import os_reason
         from polcam.errors import FrameWriteError
 
         try:

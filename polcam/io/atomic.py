@@ -29,6 +29,7 @@ import contextlib
 import errno
 import os
 import tempfile
+import threading
 from collections.abc import Iterator
 from os import PathLike
 from pathlib import Path
@@ -36,7 +37,7 @@ from typing import IO, Any
 
 from polcam.errors import FrameWriteError
 
-__all__ = ["atomic_path", "atomic_write"]
+__all__ = ["atomic_path", "atomic_write", "os_reason", "probe_folder"]
 
 _WRITE_MODES = ("w", "wb", "wt")
 
@@ -71,13 +72,74 @@ def _final_mode(target: Path) -> int:
         return 0o666 & ~_umask()
 
 
-def _describe(exc: OSError) -> str:
-    reason = exc.strerror or str(exc)
-    if exc.errno is not None:
-        name = errno.errorcode.get(exc.errno)
-        if name:
-            reason = f"{reason} ({name})"
-    return reason
+def os_reason(exc: BaseException) -> str:
+    """The system's reason of a failed write, e.g. ``No space left on device (ENOSPC)``.
+
+    An OSError gives its message and errno name; a polcam error raised from one
+    gives that OSError's; anything else its own text.
+    """
+    from polcam.errors import PolcamError
+
+    if isinstance(exc, OSError):
+        reason = exc.strerror or str(exc)
+        name = errno.errorcode.get(exc.errno) if exc.errno is not None else None
+        return f"{reason} ({name})" if name else reason
+    if isinstance(exc, PolcamError):
+        if isinstance(exc.__cause__, OSError):
+            return os_reason(exc.__cause__)
+        return getattr(exc, "reason", None) or str(exc)
+    return str(exc)
+
+
+_describe = os_reason
+
+
+def probe_folder(folder: str | PathLike[str], *, cannot: str = "cannot write to the output folder",
+                 probe_bytes: int = 65536) -> int | None:
+    """Create ``folder`` if needed and prove that files can be written there; its free bytes.
+
+    A hidden probe file of ``probe_bytes`` is written, ``fsync``-ed and
+    removed, so a read-only file system, a missing permission or a full disk
+    is found before any work rather than after it.
+
+    Returns
+    -------
+    int or None
+        The bytes free for this user on the folder's file system (None where
+        the platform cannot say).
+
+    Raises
+    ------
+    FrameWriteError
+        The folder cannot be created (a file of that name: EEXIST) or cannot be written;
+        the message names the folder, starts with ``cannot`` and gives the
+        system's reason.
+    """
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise FrameWriteError(f"cannot create the output folder: {os_reason(exc)}", path=folder) from exc
+    probe = folder / f".polcam-probe-{os.getpid()}-{threading.get_ident()}"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        try:
+            block = b"\0" * int(probe_bytes)
+            if os.write(fd, block) != len(block):
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        raise FrameWriteError(f"{cannot}: {os_reason(exc)}", path=folder) from exc
+    finally:
+        with contextlib.suppress(OSError):
+            probe.unlink()
+    try:
+        st = os.statvfs(folder)
+    except (OSError, AttributeError):  # no statvfs (Windows): the probe has to do
+        return None
+    return st.f_bavail * st.f_frsize
 
 
 def _fsync_dir(folder: Path) -> None:

@@ -25,7 +25,7 @@ pytestmark = pytest.mark.slow  # the default run covers these faults through cap
 
 def _calibrate(device: str, out, keep, n: int, *extra: str) -> list[str]:
     return [sys.executable, "-m", "polcam", "calibrate", "dark", "--device", device, "--frames", str(n),
-            "-o", str(out), "--keep", str(keep), *FAKE, *extra]
+            "-o", str(out), "--keep", str(keep), *FAKE, "--exposure", "100", *extra]
 
 
 def _kept_pairs_whole(keep) -> int:

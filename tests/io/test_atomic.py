@@ -213,3 +213,30 @@ def test_process_killed_mid_write_leaves_target_intact(tmp_path: Path) -> None:
     assert target.read_bytes() == b"complete old frame"
     leftovers = [p for p in tmp_path.iterdir() if p.name != "frame.raw"]
     assert all(p.name.startswith(".frame.raw.") for p in leftovers)  # only a hidden temp may remain
+
+
+def test_os_reason_names_the_system_error_and_looks_through_polcam_errors():
+    from polcam.io.atomic import os_reason
+
+    full = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    assert os_reason(full) == f"{os.strerror(errno.ENOSPC)} (ENOSPC)"
+    try:
+        raise FrameWriteError("writing failed", path="x") from full
+    except FrameWriteError as exc:
+        assert os_reason(exc) == f"{os.strerror(errno.ENOSPC)} (ENOSPC)"
+    assert os_reason(ValueError("odd")) == "odd"
+
+
+def test_probe_folder_creates_proves_and_cleans_up(tmp_path):
+    from polcam.io.atomic import probe_folder
+
+    folder = tmp_path / "a" / "b"
+    free = probe_folder(folder)
+    assert folder.is_dir() and list(folder.iterdir()) == []      # the probe is gone
+    assert free is None or free > 0
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(FrameWriteError, match="cannot create the output folder: .*ENOTDIR"):
+        probe_folder(blocker / "sub")
+    with pytest.raises(FrameWriteError, match="cannot create the output folder: .*EEXIST"):
+        probe_folder(blocker)
