@@ -130,3 +130,19 @@ def test_bad_worker_count(bad):
         parallel.map_threads(_square, [1], bad)
     with pytest.raises(ValueError):
         parallel.submit_threads(_square, [1], bad)
+
+
+def test_map_workers_uses_processes_only_inside_a_command():
+    """A library call runs its jobs in threads of this process; inside a polcam command (which
+    owns __main__) the same call runs them in worker processes."""
+    pids = {pid for pid, _ in parallel.map_workers(_pid_and_blas, range(4), 2)}
+    assert pids == {os.getpid()}
+    with parallel.commands_own_main():
+        pids = {pid for pid, _ in parallel.map_workers(_pid_and_blas, range(4), 2)}
+        pool, futures = parallel.submit_workers(_square, range(3), 2)
+        with pool:
+            assert [f.result() for f in futures] == [0, 1, 4]
+    assert os.getpid() not in pids
+    pool, futures = parallel.submit_workers(_square, range(3), 2)
+    with pool:
+        assert isinstance(pool, parallel.ThreadPoolExecutor) and [f.result() for f in futures] == [0, 1, 4]

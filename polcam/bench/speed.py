@@ -224,8 +224,10 @@ def _load() -> float:
 
 def _child(case: dict[str, Any]) -> dict[str, Any]:
     """:func:`measure` in a fresh interpreter."""
-    code = ("import json, sys; from polcam.bench.speed import measure; "
-            "print(json.dumps(measure(json.loads(sys.argv[1]))))")
+    code = ("import json, sys\nfrom polcam.bench.speed import measure\n"
+            "from polcam.parallel import commands_own_main\n"
+            "with commands_own_main():  # this child is polcam's own: as in polcam process\n"
+            "    print(json.dumps(measure(json.loads(sys.argv[1]))))")
     proc = subprocess.run([sys.executable, "-c", code, json.dumps(case)], capture_output=True,
                           text=True, check=False)
     if proc.returncode != 0:

@@ -82,8 +82,15 @@ def reference_markdown() -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``polcam`` and ``python -m polcam``."""
-    return run_command(build_parser().parse_args(argv))
+    """Entry point of ``polcam`` and ``python -m polcam``.
+
+    The command owns ``__main__``, so the library's parallel work may run in
+    worker processes (:func:`polcam.parallel.commands_own_main`).
+    """
+    from polcam.parallel import commands_own_main
+
+    with commands_own_main():
+        return run_command(build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -33,7 +33,7 @@ import numpy as np
 
 from polcam._xp import namespace
 from polcam.errors import MethodError
-from polcam.parallel import blas_limit, map_threads, submit_threads
+from polcam.parallel import blas_limit, map_workers, submit_workers
 from polcam.separation._common import finish_diffuse
 from polcam.separation._registry import method_spec
 from polcam.separation.tensor.ialm import solve_tiles
@@ -216,7 +216,7 @@ def _solve(d0: Any, tw: Any, plan: Plan) -> tuple[np.ndarray, float, list[dict[s
         return res[0], lam_t, records
     jobs = ((*batch([y], [x]), kw) for y in ys for x in xs)
     if plan.workers > 1:
-        out = map_threads(_tile_job, jobs, plan.workers)
+        out = map_workers(_tile_job, jobs, plan.workers)
     else:
         out = [_tile_job(j) for j in jobs]
     records = [rec for _, rec in out]
@@ -244,7 +244,7 @@ class _Initial:
         self.background = None
         if self.xp.name == "numpy" and workers > 1 and init_jobs(images) > 1:
             n, na = images.shape[:2]
-            self.background = submit_threads(
+            self.background = submit_workers(
                 _init_job, [(init, images[i, a], {}) for i in range(n) for a in range(na)], workers)
 
     def cancel(self) -> None:
@@ -301,7 +301,7 @@ def initial_diffuse(reps: np.ndarray, *, init: str = "yang10", workers: int = 1,
     jobs = [(i, a) for i in range(reps.shape[0]) for a in range(reps.shape[1])]
     args = ((init, reps[i, a], options) for i, a in jobs)
     if workers > 1 and len(jobs) > 1:
-        res = map_threads(_init_job, args, workers)
+        res = map_workers(_init_job, args, workers)
     else:
         res = map(_init_job, args)
     for (i, a), d in zip(jobs, res):
