@@ -143,7 +143,7 @@ def residual_steps(v: dict[str, Any], opts: dict[str, Any], keep: dict[str, Any]
         # only lit pixels lend their saturation to a hue: an unlit pixel's hue is that of rounding
         # noise (its residual is ~1e-11), while the median filters give it its lit neighbours'
         # saturation; a change of 1e-7 in the input moved it to another hue and moved the diffuse
-        # of a whole neighbourhood by up to 0.17 (docs/algorithm.md, ninth round)
+        # of a whole neighbourhood by up to 0.17
         m = (hbin == k) & lit
         per_bin.append(_imageops.dilate(xp.astype(xp.where(m, sat_m, 0.0), xp.float32), k_ctx)
                        if bool(m.any()) else None)
@@ -217,7 +217,7 @@ def residual_steps(v: dict[str, Any], opts: dict[str, Any], keep: dict[str, Any]
                 wgt = wgt * (1.0 - near * (1.0 - xp.clip(k_loc / _PRIOR_K, 0.0, 1.0)))
             # not where a channel is clipped at all four angles: that pixel's colour is not measured (an
             # overexposed white wall under a tinted light looked coloured and lost up to 38 % of its
-            # light; docs/algorithm.md, tenth round); a clipped highlight is step 7's
+            # light); a clipped highlight is step 7's
             wgt = xp.where(xp.amax(measured, axis=-1) >= _SATURATED, 0.0, wgt)
             wgt = wgt[..., None]
             diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig,
