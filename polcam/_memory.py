@@ -44,28 +44,32 @@ def reset_peak() -> bool:
     return True
 
 
-def peak_rss_mb() -> float:
-    """Largest RSS of this process since :func:`reset_peak` (else since it started), MB."""
+def _proc_mb(path: str, key: str) -> float | None:
+    """The ``key:`` line of a Linux /proc file (in kB) as MB; None where it cannot be read."""
     try:
-        with open("/proc/self/status") as fh:
+        with open(path) as fh:
             for line in fh:
-                if line.startswith("VmHWM:"):
+                if line.startswith(key + ":"):
                     return float(line.split()[1]) / 1024.0
     except OSError:
         pass
+    return None
+
+
+def peak_rss_mb() -> float:
+    """Largest RSS of this process since :func:`reset_peak` (else since it started), MB."""
+    hwm = _proc_mb("/proc/self/status", "VmHWM")
+    if hwm is not None:
+        return hwm
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return peak / 2**20 if sys.platform == "darwin" else peak / 1024.0  # bytes on macOS, KiB elsewhere
 
 
 def available_mb() -> float | None:
     """Memory available to new work without swapping, MB (None where it cannot be read)."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return float(line.split()[1]) / 1024.0
-    except OSError:
-        pass
+    avail = _proc_mb("/proc/meminfo", "MemAvailable")
+    if avail is not None:
+        return avail
     try:
         import psutil
     except ImportError:
