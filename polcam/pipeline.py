@@ -39,7 +39,8 @@ from polcam.mosaic import Layout
 
 if TYPE_CHECKING:
     from polcam.calibration.store import Calibration
-    from polcam.separation import Separation
+    from polcam.demosaicing import ResolvedDemosaic
+    from polcam.separation import ResolvedSeparation, Separation
 
 __all__ = [
     "PRODUCTS",
@@ -104,16 +105,17 @@ def default_demosaic(layout: str | Layout) -> str:
     return default_method(layout)
 
 
-def to_stack(frame: Frame, *, layout: str | Layout | None = None, method: str | None = None,
+def to_stack(frame: Frame, *, layout: str | Layout | None = None, demosaic: str | ResolvedDemosaic | None = None,
              resolution: str = "full") -> np.ndarray:
     """Demosaic ``frame`` into a float32 stack (4, H, W) mono or (4, H, W, 3) RGB (halved at ``cell``).
 
-    ``method`` ``None``: :func:`default_demosaic` of the frame's layout.  Linear values
-    on the scale of the normalised frame (not clipped).
+    ``demosaic``: the demosaicing method, a name, a :class:`~polcam.demosaicing.ResolvedDemosaic`
+    or ``None`` (:func:`default_demosaic` of the frame's layout).  Linear values on the scale of
+    the normalised frame (not clipped).
     """
     from polcam.demosaicing import demosaic as _demosaic  # the one demosaic import of the pipeline
 
-    kwargs: dict[str, Any] = {"resolution": resolution, "method": method}
+    kwargs: dict[str, Any] = {"resolution": resolution, "method": demosaic}
     if layout is not None:
         kwargs["layout"] = layout
     return _demosaic(frame, **kwargs)
@@ -130,30 +132,16 @@ def products(stack: np.ndarray, names: Iterable[str] = tuple(PRODUCTS)) -> dict[
     return {name: stack[views.index(name)] if name.startswith("i") else m[name] for name in names}
 
 
-def separate_layers(stack: np.ndarray, *, method: str | None = None,
+def separate_layers(stack: np.ndarray, *, method: str | ResolvedSeparation | None = None,
                     options: Mapping[str, Any] | None = None) -> Separation:
-    """Diffuse and specular layers of a stack by ``method`` (None: the registry's default).
+    """Diffuse and specular layers of a stack by ``method`` (a name, a
+    :class:`~polcam.separation.ResolvedSeparation`, or None: the registry's default).
 
     :func:`polcam.separate` clips the stack to [0, 1] (recorded in ``info``).
     """
     from polcam.separation import separate
 
     return separate(stack, method=method, **dict(options or {}))
-
-
-def _takes_fit(method: str | None, stack_shape: tuple[int, ...]) -> bool:
-    """Whether the separation ``method`` (None: the default for the stack's form) takes a precomputed
-    sinusoid fit (its ``fit`` option), which :func:`run_frame` then computes in the pass that makes
-    the frame's maps instead of the method fitting the stack again."""
-    from polcam.errors import MethodError
-    from polcam.separation._registry import check_options, default_method, input_form
-
-    try:
-        name = method if method is not None else default_method(input_form(stack_shape))
-        check_options(name, {"fit": None})
-    except MethodError:
-        return False
-    return True
 
 
 def _products_and_fit(stack: np.ndarray, names: tuple[str, ...]) -> tuple[dict[str, np.ndarray], st.Sinusoid]:
@@ -193,9 +181,10 @@ class FrameResult:
 
 
 def run_frame(frame: Frame, *, calibration: Calibration | None = None, layout: str | Layout | None = None,
-              demosaic: str | None = None, resolution: str = "full",
+              demosaic: str | ResolvedDemosaic | None = None, resolution: str = "full",
               stokes_products: Iterable[str] = ("s0", "dolp", "aolp"), separate: bool = False,
-              method: str | None = None, method_options: Mapping[str, Any] | None = None) -> FrameResult:
+              method: str | ResolvedSeparation | None = None,
+              method_options: Mapping[str, Any] | None = None) -> FrameResult:
     """A frame through the whole pipeline: calibration, demosaicing, Stokes products, separation.
 
     Parameters
@@ -205,12 +194,13 @@ def run_frame(frame: Frame, *, calibration: Calibration | None = None, layout: s
     calibration
         Applied to the mosaic first, or ``None``.
     layout, demosaic, resolution
-        As :func:`to_stack`.
+        As :func:`to_stack` (``demosaic``: the demosaicing method).
     stokes_products
         Stokes products to compute (keys of :data:`PRODUCTS`).
     separate
-        Also run the separation (``method``, ``method_options``; method
-        ``None``: the registry's default for the stack's form).
+        Also run the separation: ``method`` (the separation method: a name, a
+        :class:`~polcam.separation.ResolvedSeparation`, or ``None``: the
+        registry's default for the stack's form) with ``method_options``.
 
     Returns
     -------
@@ -221,26 +211,41 @@ def run_frame(frame: Frame, *, calibration: Calibration | None = None, layout: s
     frame = calibrate(frame, calibration)
     timings["calibrate"] = time.perf_counter() - t
     t = time.perf_counter()
-    stack = to_stack(frame, layout=layout, method=demosaic, resolution=resolution)
+    stack = to_stack(frame, layout=layout, demosaic=demosaic, resolution=resolution)
     timings["demosaic"] = time.perf_counter() - t
     t = time.perf_counter()
-    options = dict(method_options or {})
-    if separate and "fit" not in options and _takes_fit(method, stack.shape):
+    sep = _resolved(stack.shape, method, method_options) if separate else None
+    if sep is not None and "fit" not in sep.options and sep.takes("fit"):
+        # a method that takes a precomputed sinusoid fit gets the one made in the pass that makes the maps
         names = tuple(stokes_products)
         unknown = [n for n in names if n not in PRODUCTS]
         if unknown:
             raise ValueError(f"unknown products {unknown}: expected names among {', '.join(PRODUCTS)}")
-        out, options["fit"] = _products_and_fit(stack, names)
+        out, fit = _products_and_fit(stack, names)
+        sep = sep.with_options(fit=fit)
     else:
         out = products(stack, stokes_products)
     timings["stokes"] = time.perf_counter() - t
     res = None
-    if separate:
+    if sep is not None:
         t = time.perf_counter()
-        res = separate_layers(stack, method=method, options=options)
+        res = separate_layers(stack, method=sep)
         timings["separate"] = time.perf_counter() - t
         out["diffuse"], out["specular"] = res.diffuse, res.specular
     return FrameResult(frame=frame, stack=stack, products=out, separation=res, timings=timings)
+
+
+def _resolved(shape: tuple[int, ...], method: str | ResolvedSeparation | None,
+              options: Mapping[str, Any] | None) -> ResolvedSeparation:
+    """The separation of a stack of ``shape``: ``method`` as resolved (``options`` added), or resolved
+    here for the stack's form."""
+    from polcam.separation import ResolvedSeparation, input_form, resolve_separation
+
+    form = input_form(shape)
+    if isinstance(method, ResolvedSeparation):
+        sep = method if method.form == form else method.for_form(form)
+        return sep.with_options(**options) if options else sep
+    return resolve_separation(method, form, options)
 
 
 # ---------------------------------------------------------------------------

@@ -46,20 +46,23 @@ import os
 import re
 import signal
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from polcam import __version__
 from polcam._hashing import sha256_file
 from polcam.errors import PolcamError
-from polcam.pipeline import default_demosaic
 from polcam.sinks.files import FORMATS
 from polcam.outdir import summarize, write_summary
-from polcam.process_checks import _takes, check_run, layout_hint
+from polcam.process_checks import check_run, layout_hint, separation_for
+
+if TYPE_CHECKING:
+    from polcam.demosaicing import ResolvedDemosaic
+    from polcam.separation import ResolvedSeparation
 
 __all__ = ["ProcessOptions", "FrameJob", "OUTPUTS", "check_run", "layout_hint", "plan", "process_frame", "run",
            "sha256_file"]
@@ -178,55 +181,57 @@ def _is_done(job: FrameJob, opts: ProcessOptions, fingerprint: str) -> bool:
     return True
 
 
-def _prepare(job: FrameJob, opts: ProcessOptions) -> tuple[Any, str, dict[str, Any], dict[str, Any], str]:
+def _prepare(job: FrameJob, opts: ProcessOptions, separations: Mapping[str, ResolvedSeparation]
+             ) -> tuple[Any, ResolvedSeparation, ResolvedDemosaic, dict[str, Any], str]:
     """Read the frame and work out everything that determines its outputs.
 
-    Returns (frame, method, method options, fingerprint parts, fingerprint).
+    ``separations``: the run's resolved separation per input form (:func:`check_run`); a form
+    it lacks is resolved here.  Returns (frame, separation, demosaicing, fingerprint parts,
+    fingerprint).
     """
+    from polcam.demosaicing import resolve_demosaic
     from polcam.io import read_frame
     from polcam.pipeline import require_layout
+    from polcam.separation import layout_form
 
     input_hash = sha256_file(job.input)
     if opts.max_memory:
-        _check_memory(job, opts)
+        _check_memory(job, opts, separations)
     frame = require_layout(read_frame(job.input, layout=opts.layout, max_pixels=opts.max_pixels), job.input)
     calibration_hash = sha256_file(opts.calibration) if opts.calibration else None
-    from polcam.separation import default_method
-
-    method = opts.method or default_method("stack" if frame.layout.is_color else "mono-stack")
-    # without --method each frame's default method gets the options it takes (check_run made sure
-    # that every option is taken by some method of the run)
-    method_options = (dict(opts.method_options) if opts.method else
-                      {k: v for k, v in opts.method_options.items() if _takes(method, k)})
+    form = layout_form(frame.layout)
+    sep = separations.get(form) or separation_for(opts, form, got=f"a frame of the mono layout {frame.layout}")
+    dem = resolve_demosaic(opts.demosaic, frame.layout)
     parts = {
         "input_sha256": input_hash,
         "layout": str(frame.layout),
         "black_level": float(frame.black_level),
         "white_level": float(frame.white_level),
         "calibration_sha256": calibration_hash,
-        "demosaic": opts.demosaic or default_demosaic(frame.layout),
+        "demosaic": dem.method,
         "resolution": opts.resolution,
-        "method": method,
-        "method_options": _jsonable(method_options),
+        "method": sep.method,
+        "method_options": _jsonable(dict(sep.options)),
         "format": opts.format,
         "polcam_version": __version__,
     }
-    return frame, method, method_options, parts, hashlib.sha256(_canonical(parts).encode()).hexdigest()
+    return frame, sep, dem, parts, hashlib.sha256(_canonical(parts).encode()).hexdigest()
 
 
-def _check_memory(job: FrameJob, opts: ProcessOptions) -> None:
+def _check_memory(job: FrameJob, opts: ProcessOptions, separations: Mapping[str, ResolvedSeparation]) -> None:
     """Refuse a frame whose declared size needs more memory than ``opts.max_memory`` (before reading it)."""
     from polcam.footprint import frame_memory
     from polcam.io.readers import declared_size
     from polcam.mosaic import parse_layout
-    from polcam.separation import default_method
+    from polcam.separation import layout_form
 
     size = declared_size(job.input)
     if size is None or opts.max_memory is None:
         return
     lay = parse_layout(opts.layout) if opts.layout else layout_hint(job.input)
     colour = lay is None or lay.is_color          # unknown: the larger (colour) estimate
-    method = opts.method or default_method("stack" if colour else "mono-stack")
+    form = "stack" if lay is None else layout_form(lay)
+    method = (separations.get(form) or separation_for(opts, form, got=f"a frame of the mono layout {lay}")).method
     need = frame_memory(*size, colour=colour, resolution=opts.resolution, method=method)
     if need > opts.max_memory:
         raise FrameTooLarge(
@@ -253,8 +258,12 @@ def _remove_stale_temps(folder: Path) -> int:
     return n
 
 
-def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -> dict[str, Any]:
+def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False,
+                  separations: Mapping[str, ResolvedSeparation] | None = None) -> dict[str, Any]:
     """Process one frame; never raises for bad input (the error is in the result).
+
+    ``separations``: the run's separation per input form, as :func:`check_run` resolved it
+    (None or a form it lacks: resolved for this frame).
 
     Returns
     -------
@@ -264,6 +273,14 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
         a done frame adds ``peak_rss_mb``, the largest resident memory of the
         process while it computed the frame (:mod:`polcam._memory`).
     """
+    return _process_frame(job, opts, force=force, separations=separations or {}, in_pool=False)
+
+
+def _process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool,
+                   separations: Mapping[str, ResolvedSeparation], in_pool: bool) -> dict[str, Any]:
+    """:func:`process_frame`; ``in_pool``: in a worker of :func:`run`'s local pool, where the frames are
+    the parallel part, so a method with a ``workers`` option (the tensor methods) runs with one
+    instead of starting processes of its own (the answer does not change)."""
     from threadpoolctl import threadpool_limits
 
     from polcam._memory import peak_rss_mb, reset_peak
@@ -273,14 +290,16 @@ def process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool = False) -
     try:
         target = Path(job.target)
         _remove_stale_temps(target)
-        frame, method, method_options, parts, fingerprint = _prepare(job, opts)
+        frame, sep, dem, parts, fingerprint = _prepare(job, opts, separations)
         if not force and _is_done(job, opts, fingerprint):
             return {**base, "status": "skipped", "fingerprint": fingerprint,
                     "seconds": time.perf_counter() - t0}
         _unmark_finished(target)
         reset_peak()  # the frame's own peak memory (polcam._memory)
         with threadpool_limits(limits=1, user_api="blas"):
-            _compute(job, opts, frame, method, method_options, parts, fingerprint, t0)
+            if in_pool and sep.takes("workers") and "workers" not in sep.options:
+                sep = sep.with_options(workers=1)
+            _compute(job, opts, frame, sep, dem, parts, fingerprint, t0)
         return {**base, "status": "done", "fingerprint": fingerprint,
                 "seconds": time.perf_counter() - t0, "peak_rss_mb": round(peak_rss_mb(), 1)}
     except Exception as exc:  # a bad frame never stops the batch: it is reported by name
@@ -313,26 +332,21 @@ def _unmark_finished(target: Path) -> None:
     _fsync_dir(target)
 
 
-def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, method_options: dict[str, Any],
+def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, sep: ResolvedSeparation, dem: ResolvedDemosaic,
              parts: dict[str, Any], fingerprint: str, t0: float) -> dict[str, Any]:
     from polcam.pipeline import run_frame
-    from polcam.separation import method_spec
     from polcam.sinks.files import write_meta, write_products
 
     calibration = _calibration(opts.calibration, parts["calibration_sha256"]) if opts.calibration else None
     read_seconds = time.perf_counter() - t0
-    run_options = dict(method_options)
-    if _IN_POOL and "workers" in (method_spec(method).options or ()) and "workers" not in run_options:
-        run_options["workers"] = 1  # the frames are the parallel part here (the answer does not change)
-    result = run_frame(frame, calibration=calibration, demosaic=parts["demosaic"], resolution=opts.resolution,
-                       stokes_products=("s0", "dolp", "aolp"), separate=True, method=method,
-                       method_options=run_options)
+    result = run_frame(frame, calibration=calibration, demosaic=dem, resolution=opts.resolution,
+                       stokes_products=("s0", "dolp", "aolp"), separate=True, method=sep)
     frame = result.frame
     timings: dict[str, float] = {"read": read_seconds + result.timings["calibrate"],
                                  **{k: v for k, v in result.timings.items() if k != "calibrate"}}
     t = time.perf_counter()
     source = os.path.abspath(job.input)  # meta.json names the raw frame from wherever it is read
-    file_meta = {"input": source, "method": method, "layout": str(frame.layout),
+    file_meta = {"input": source, "method": parts["method"], "layout": str(frame.layout),
                  "fingerprint": fingerprint, "polcam_version": __version__}
     _exit_if_orphaned()
     names = write_products(job.target, {name: result.products[name] for name in OUTPUTS}, fmt=opts.format,
@@ -355,8 +369,8 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
         "white_level": frame.white_level,
         "calibration": opts.calibration,
         "calibration_sha256": parts["calibration_sha256"],
-        "method": method,
-        "method_options": _jsonable(method_options),
+        "method": parts["method"],
+        "method_options": parts["method_options"],
         "options_requested": _jsonable(asdict(opts)),
         "polcam_version": __version__,
         "shape": list(result.stack.shape),
@@ -418,23 +432,12 @@ class RunRecording:  # RERUN SINK (process --rerun): to become the shared polcam
         self._sink.close()
 
 
-#: True in the worker processes of :func:`run`: the frames run in parallel there, so a method with
-#: a ``workers`` option (the tensor methods) runs with one instead of starting processes of its own.
-_IN_POOL = False
-
-
-def _init_worker() -> None:
-    """Worker initializer: mark the process as a frame worker (its BLAS threads are limited by
-    :func:`polcam.parallel.process_pool`)."""
-    global _IN_POOL
-    _IN_POOL = True
-
-
 def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         scheduler: str | None = None, force: bool = False,
         on_result: Callable[[dict[str, Any]], None] | None = None,
         stop: Callable[[], bool] | None = None, abort: Callable[[], Any] | None = None,
-        scheduler_timeout: float = 10.0) -> list[dict[str, Any]]:
+        scheduler_timeout: float = 10.0,
+        separations: Mapping[str, ResolvedSeparation] | None = None) -> list[dict[str, Any]]:
     """Process ``jobs``; results in completion order.
 
     Parameters
@@ -464,6 +467,9 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         that frame cancelled to ``on_result`` and propagates.
     scheduler_timeout
         Seconds to wait for a Dask scheduler given by address.
+    separations
+        The run's separation per input form, from :func:`check_run`; None: resolved here (a
+        method or options :func:`check_run` refuses then fail each frame, with the reason).
 
     Returns
     -------
@@ -486,14 +492,15 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
 
     stop = stop or (lambda: False)
     abort = abort or (lambda: False)
+    seps = dict(separations) if separations is not None else _separations(opts, jobs)
     if scheduler is not None:
-        _run_dask(jobs, opts, scheduler, force, done, stop, abort, scheduler_timeout)
+        _run_dask(jobs, opts, scheduler, force, done, stop, abort, scheduler_timeout, seps)
     elif workers <= 1:
         for job in jobs:
             if stop() or abort():
                 break
             try:
-                r = process_frame(job, opts, force=force)
+                r = _process_frame(job, opts, force=force, separations=seps, in_pool=False)
             except KeyboardInterrupt:  # reported, then passed on: the caller decides what it means
                 done(_cancelled(job, _stopped(abort)))
                 raise
@@ -510,15 +517,25 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
                 done({"input": job.input, "name": job.name, "status": "failed", "seconds": None,
                       "error": f"{job.input}: {why.reason}"})
 
-        run_jobs(functools.partial(_frame_task, opts=opts, force=force), jobs, workers,
+        run_jobs(functools.partial(_frame_task, opts=opts, force=force, separations=seps), jobs, workers,
                  on_result=lambda job, r: done(r), on_lost=lost, stop=stop, abort=abort,
                  on_cancel=lambda job: done(_cancelled(job, _stopped(abort))),
-                 preload=("polcam.process",), initializer=_init_worker)
+                 preload=("polcam.process",))
     return results
 
 
-def _frame_task(job: FrameJob, *, opts: ProcessOptions, force: bool) -> dict[str, Any]:
-    return process_frame(job, opts, force=force)
+def _separations(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, ResolvedSeparation]:
+    """:func:`check_run`'s separations, or none where it refuses the run (each frame then fails with the reason)."""
+    try:
+        return check_run(opts, jobs)
+    except (PolcamError, ValueError):
+        return {}
+
+
+def _frame_task(job: FrameJob, *, opts: ProcessOptions, force: bool,
+                separations: Mapping[str, ResolvedSeparation]) -> dict[str, Any]:
+    """One frame in a worker of the local pool."""
+    return _process_frame(job, opts, force=force, separations=separations, in_pool=True)
 
 
 def _stopped(abort: Callable[[], Any]) -> str:
@@ -554,13 +571,13 @@ def connect_scheduler(address: str, *, timeout: float = 10.0) -> Any:
 
 def _run_dask(jobs: Sequence[FrameJob], opts: ProcessOptions, scheduler: Any, force: bool,
               done: Callable[[dict[str, Any]], None], stop: Callable[[], bool], abort: Callable[[], Any],
-              timeout: float) -> None:
+              timeout: float, separations: Mapping[str, ResolvedSeparation]) -> None:
     from distributed import Client, as_completed
 
     own = not isinstance(scheduler, Client)
     client = connect_scheduler(scheduler, timeout=timeout) if own else scheduler
     try:
-        futures = {client.submit(process_frame, job, opts, force=force, pure=False,
+        futures = {client.submit(process_frame, job, opts, force=force, separations=separations, pure=False,
                                  key=f"polcam-{job.name}-{i}"): job for i, job in enumerate(jobs)}
         pending = set(futures)
         for fut in as_completed(list(futures)):

@@ -1,4 +1,5 @@
-"""Checks of a ``polcam process`` run before any work: the method and options against the frames' forms.
+"""The separation of a ``polcam process`` run, resolved before any work: the method and options
+against the frames' forms.
 
 Kept apart from :mod:`polcam.process` (which re-exports :func:`check_run` and
 :func:`layout_hint`) so the batch module stays about running frames.
@@ -14,19 +15,9 @@ from polcam.errors import PolcamError
 
 if TYPE_CHECKING:
     from polcam.process import FrameJob, ProcessOptions
+    from polcam.separation import ResolvedSeparation
 
-__all__ = ["check_run", "layout_hint"]
-
-
-def _takes(method: str, option: str) -> bool:
-    from polcam.errors import MethodError
-    from polcam.separation._registry import check_options
-
-    try:
-        check_options(method, {option: None}, types=False)
-    except MethodError:
-        return False
-    return True
+__all__ = ["check_run", "layout_hint", "separation_for"]
 
 
 def layout_hint(path: str | os.PathLike[str]) -> Any:
@@ -49,8 +40,26 @@ def layout_hint(path: str | os.PathLike[str]) -> Any:
     return None
 
 
-def check_run(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, str]:
-    """Check the method and options against the frames before any work; the method per input form.
+def separation_for(opts: ProcessOptions, form: str, *, got: str | None = None) -> ResolvedSeparation:
+    """The separation of a run's frames of ``form`` (``"stack"`` or ``"mono-stack"``).
+
+    ``opts.method`` with all of ``opts.method_options``; without a method, the registry's default
+    for the form with the options it takes (:func:`check_run` makes sure some method of the run
+    takes each).
+
+    Raises
+    ------
+    MethodError
+        An unknown method; an option it does not take or a value not of the option's type; a
+        colour-only method for mono frames (``got`` describes them in the message).
+    """
+    from polcam.separation import resolve_separation
+
+    return resolve_separation(opts.method, form, opts.method_options, only_taken=opts.method is None, got=got)
+
+
+def check_run(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, ResolvedSeparation]:
+    """Resolve the separation of a run before any work: the method and options against the frames' forms.
 
     Without ``opts.method`` each frame runs the registry's default for its form (colour stack
     or mono stack); the forms are known from ``opts.layout``, else from the frames' sidecars
@@ -59,7 +68,10 @@ def check_run(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, str]:
     Returns
     -------
     dict
-        Input form (``"stack"``, ``"mono-stack"``) -> method of the frames of that form.
+        Input form (``"stack"``, ``"mono-stack"``) -> the :class:`~polcam.separation.ResolvedSeparation`
+        of the frames of that form (:func:`polcam.process.run` takes it as it is).  A form whose
+        frames a colour-only ``opts.method`` cannot take (known from sidecars only) is left out:
+        those frames fail, each with the reason.
 
     Raises
     ------
@@ -71,38 +83,33 @@ def check_run(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, str]:
         An unknown ``opts.layout``.
     """
     from polcam.errors import MethodError
-    from polcam.mosaic import parse_layout
-    from polcam.separation import default_method, method_spec, methods
-    from polcam.separation._registry import check_options
+    from polcam.separation import check_options, layout_form
 
     if opts.layout is not None:
-        lay = parse_layout(opts.layout)
-        forms = {"stack" if lay.is_color else "mono-stack"}
+        forms = {layout_form(opts.layout)}
     else:
         hints = [layout_hint(j.input) for j in jobs]
-        forms = {"stack" if h.is_color else "mono-stack" for h in hints if h is not None}
+        forms = {layout_form(h) for h in hints if h is not None}
         if not forms or any(h is None for h in hints):
             forms |= {"stack", "mono-stack"}
     if opts.method is not None:
-        spec = method_spec(opts.method)
-        check_options(opts.method, dict(opts.method_options))
-        if opts.layout is not None and forms == {"mono-stack"} and not spec.mono:
-            mono = ", ".join(m for m in methods() if method_spec(m).mono)
-            raise MethodError(f"--method {opts.method}: it needs colour frames and --layout {opts.layout} is "
-                              f"a mono layout; for mono frames use one of {mono}")
-        return {f: opts.method for f in sorted(forms)}
-    chosen = {f: default_method(f) for f in sorted(forms)}
+        # a colour stack takes every method: the name and the options are checked whatever the frames are
+        named = separation_for(opts, "stack")
+        chosen = {"stack": named} if "stack" in forms else {}
+        if "mono-stack" in forms:
+            if named.spec.mono or opts.layout is not None:  # a mono --layout: refused now
+                chosen["mono-stack"] = named.for_form("mono-stack", got=f"mono frames (--layout {opts.layout})")
+        return chosen
+    chosen = {f: separation_for(opts, f) for f in sorted(forms)}
     for key in opts.method_options:
-        if not any(_takes(m, key) for m in chosen.values()):
+        if not any(r.takes(key) for r in chosen.values()):
             reasons = []
-            for m in sorted(set(chosen.values())):
+            for r in sorted(chosen.values(), key=lambda r: r.method):
                 try:
-                    check_options(m, {key: None}, types=False)
+                    check_options(r.spec, {key: None}, types=False)
                 except MethodError as exc:
-                    reasons.append(str(exc))
-            used = ", ".join(f"{m} for {'colour' if f == 'stack' else 'mono'} frames" for f, m in chosen.items())
+                    if str(exc) not in reasons:
+                        reasons.append(str(exc))
+            used = ", ".join(f"{r.method} for {'colour' if f == 'stack' else 'mono'} frames" for f, r in chosen.items())
             raise MethodError(f"--option {key}: no method of this run ({used}) takes it: {'; '.join(reasons)}")
-        for m in sorted(set(chosen.values())):
-            if _takes(m, key):
-                check_options(m, {key: opts.method_options[key]})
     return chosen

@@ -14,8 +14,14 @@ import pytest
 SURFACE: dict[str, set[str]] = {
     "polcam": {"DEMOSAIC_METHODS", "Frame", "Layout", "METHODS", "PolcamError", "Separation", "Stokes", "__version__", "aolp",
                "demosaic", "dolp", "imax", "imin", "parse_layout", "read_frame", "read_image", "separate", "stokes", "write_image"},
-    "polcam.separation": {"METHODS", "Separation", "default_method", "input_form", "method_spec", "methods",
-                          "register", "separate"},
+    "polcam.separation": {"METHODS", "MethodSpec", "ResolvedSeparation", "Separation", "check_options",
+                          "default_method", "estimated_illuminant", "input_form", "layout_form", "method_spec",
+                          "methods", "register", "resolve_separation", "separate", "takes_illuminant",
+                          "unregister"},
+    "polcam.demosaicing": {"DEMOSAIC_METHODS", "RESOLUTIONS", "MethodSpec", "ResolvedDemosaic", "default_method",
+                           "demosaic", "method_spec", "methods", "mosaic_stack", "register", "resolve_demosaic",
+                           "to_float", "unregister"},
+    "polcam.registry": {"Registry"},
     "polcam.io": {"IMAGE_EXTENSIONS", "RAW_EXTENSIONS", "atomic_path", "atomic_write", "pack", "packed_size",
                   "read_frame", "read_image", "read_sidecar", "sidecar_path", "unpack", "write_frame",
                   "write_image", "write_sidecar"},
@@ -56,7 +62,7 @@ def test_public_names_are_exactly_these(module):
 
 def test_method_lists_follow_the_registries():
     import polcam
-    from polcam.separation import _registry, methods, register
+    from polcam.separation import methods, register, unregister
 
     assert polcam.METHODS == methods() and "tensor" in polcam.METHODS and "imin" in polcam.METHODS
     assert "bilinear" in polcam.DEMOSAIC_METHODS
@@ -69,7 +75,7 @@ def test_method_lists_follow_the_registries():
         assert "api-surface-probe" in polcam.METHODS
         assert "api-surface-probe" in importlib.import_module("polcam.separation").METHODS
     finally:
-        del _registry._METHODS["api-surface-probe"]
+        unregister("api-surface-probe")
     assert "api-surface-probe" not in polcam.METHODS
 
 

@@ -762,11 +762,11 @@ def test_live_separation_holds_the_first_frames_illuminant(tmp_path):
 
 def test_the_held_illuminant_reaches_every_later_separation(tmp_path):
     from polcam.acquisition.live import LiveProcessor
-    from polcam.separation import _registry
+    from polcam import separation
 
     calls: list[dict] = []
 
-    @_registry.register("test-illuminant-probe", kind="stack", options=("illuminant",))
+    @separation.register("test-illuminant-probe", kind="stack", options=("illuminant",))
     def probe(stack, **options):
         calls.append(dict(options))
         return stack.mean(axis=0), {"illuminant": [1.2, 1.0, 0.8]}
@@ -781,7 +781,7 @@ def test_the_held_illuminant_reaches_every_later_separation(tmp_path):
                 time.sleep(0.01)
         live.close()
     finally:
-        del _registry._METHODS["test-illuminant-probe"]
+        separation.unregister("test-illuminant-probe")
     assert live.separation_errors == [] and len(calls) == 3
     assert calls[0] == {} and calls[1] == calls[2] == {"illuminant": [1.2, 1.0, 0.8]}
     assert live.held_illuminant == [1.2, 1.0, 0.8]

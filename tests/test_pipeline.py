@@ -47,7 +47,7 @@ def test_run_frame_is_demosaic_then_products_then_separation():
     np.testing.assert_allclose(res.products["diffuse"] + res.products["specular"], mean, atol=1e-6)
     assert res.separation is not None and res.separation.info["method"] == "imin"
     assert {"calibrate", "demosaic", "stokes", "separate"} <= set(res.timings)
-    assert to_stack(frame, method="bilinear", resolution="cell").shape == ref.shape
+    assert to_stack(frame, demosaic="bilinear", resolution="cell").shape == ref.shape
 
 
 def test_separate_layers_clips_the_stack_first():
@@ -91,7 +91,9 @@ def test_run_frame_hands_wen21_the_fit_of_its_maps_pass(monkeypatch):
     seen = []
     real = wen21_mod._fit
     monkeypatch.setattr(wen21_mod, "_fit", lambda arr: seen.append(arr.shape) or real(arr))
-    assert pipeline._takes_fit("wen21", (4, 8, 8, 3)) and not pipeline._takes_fit("imin", (4, 8, 8, 3))
+    from polcam.separation import resolve_separation
+
+    assert resolve_separation("wen21", "stack").takes("fit") and not resolve_separation("imin", "stack").takes("fit")
     res = pipeline.run_frame(frame, resolution="cell", separate=True, method="wen21")
     assert seen == []  # the method did not fit the stack again
     alone = polcam.separate(np.clip(res.stack, 0, 1), method="wen21")

@@ -17,9 +17,11 @@ import time
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
+from polcam.demosaicing import resolve_demosaic
 from polcam.frame import Frame
 from polcam.mosaic import Layout
 from polcam.pipeline import calibrate, live_maps, separate_layers, to_stack
+from polcam.separation import ResolvedSeparation, estimated_illuminant, layout_form, resolve_separation
 
 if TYPE_CHECKING:
     from polcam.calibration.store import Calibration
@@ -69,7 +71,7 @@ class Counters:
         self.incomplete = 0
 
 
-def _start_workers_deaf_to_ctrl_c(method: str) -> int | None:
+def _start_workers_deaf_to_ctrl_c(separation: ResolvedSeparation) -> int | None:
     """Start the fork server of a method that runs worker processes, with SIGINT ignored.
 
     A terminal's Ctrl-C reaches the whole process group.  The capture turns it
@@ -80,9 +82,8 @@ def _start_workers_deaf_to_ctrl_c(method: str) -> int | None:
     they would anyway.  Returns the fork server's process id when it was started here.
     """
     from polcam import parallel
-    from polcam.separation import method_spec
 
-    if "workers" not in (method_spec(method).options or ()) or parallel.start_method() != "forkserver":
+    if "workers" not in (separation.spec.options or ()) or parallel.start_method() != "forkserver":
         return None
     if threading.current_thread() is not threading.main_thread():
         return None
@@ -143,7 +144,9 @@ class LiveProcessor:
     sink
         A :class:`polcam.sinks.rerun.RerunSink`, or ``None``.
     separate
-        Separation method for the diffuse/specular layers, or ``None``.
+        Separation method for the diffuse/specular layers (a name, or a
+        :class:`~polcam.separation.ResolvedSeparation` for the layout's form as
+        :func:`~polcam.acquisition.run_capture` resolves it), or ``None``.
         ``imin`` is computed on the live thread from the live maps (every
         processed frame); other methods run on their own thread on the
         polarizer-cell stack of the newest frame (``polcam.demosaic``
@@ -175,22 +178,26 @@ class LiveProcessor:
         mosaic logged to ``/camera/raw`` stays as the camera sent it.
     """
 
-    def __init__(self, layout: Layout, *, sink: Any = None, separate: str | None = None,
+    def __init__(self, layout: Layout, *, sink: Any = None, separate: str | ResolvedSeparation | None = None,
                  separate_options: dict[str, Any] | None = None,
                  counters: Counters | None = None, workers: int = 2,
                  calibration: Calibration | None = None, hold_illuminant: bool = True) -> None:
         self.layout = layout
+        self._bilinear = resolve_demosaic("bilinear", layout)  # the separation's cell stack
         self.sink = sink
         self.calibration = calibration
-        self.method = separate
-        self.method_options = dict(separate_options or {})
+        if isinstance(separate, str):
+            separate = resolve_separation(separate, layout_form(layout), separate_options)
+        elif separate is not None and separate_options:
+            separate = separate.with_options(**separate_options)
+        #: The separation the layers run, resolved once (options as passed to the method), or None.
+        self.separation: ResolvedSeparation | None = separate
+        self.method = None if separate is None else separate.method
+        self.method_options = {} if separate is None else dict(separate.options)
         #: The illuminant estimated on the first separated frame and passed to the later ones (RGB), or None.
         self.held_illuminant: list[float] | None = None
-        self._hold = False
-        if hold_illuminant and separate is not None and "illuminant" not in self.method_options:
-            from polcam.separation._registry import takes_illuminant
-
-            self._hold = takes_illuminant(separate)
+        self._hold = hold_illuminant and separate is not None and "illuminant" not in separate.options \
+            and separate.takes("illuminant")
         self.counters = counters or Counters()
         #: Frames whose maps were computed (and logged, with a sink).
         self.processed = 0
@@ -219,7 +226,7 @@ class LiveProcessor:
         #: True when a stop did not wait for the separation in progress (:meth:`close`).
         self.separation_abandoned = False
         self._fork_server: int | None = None
-        if separate not in (None, "imin"):
+        if separate is not None and separate.method != "imin":
             self._fork_server = _start_workers_deaf_to_ctrl_c(separate)
             self._sep_thread = threading.Thread(target=self._run_separation, name="separation", daemon=True)
             self._sep_thread.start()
@@ -315,9 +322,9 @@ class LiveProcessor:
                 index, frame = self._sep_pending
                 self._sep_pending = None
             try:
-                stack = to_stack(frame, layout=self.layout, method="bilinear", resolution="cell")
+                stack = to_stack(frame, demosaic=self._bilinear, resolution="cell")
                 t0 = time.perf_counter()
-                res = separate_layers(stack, method=self.method, options=self.method_options)
+                res = separate_layers(stack, method=self.separation)
                 if self.separation_abandoned:  # the capture stopped without it
                     return
                 dt = time.perf_counter() - t0
@@ -342,11 +349,10 @@ class LiveProcessor:
 
     def _hold_from(self, info: dict[str, Any]) -> None:
         """Keep the illuminant a separation estimated, for the separations that follow."""
-        from polcam.separation._registry import estimated_illuminant
-
         est = estimated_illuminant(info)
-        if est is not None:
+        if est is not None and self.separation is not None:
             self.held_illuminant = est
+            self.separation = self.separation.with_options(illuminant=est)
             self.method_options["illuminant"] = est
 
     def close(self, *, finish: bool = True, abandon_after: float = 1.0) -> None:

@@ -288,27 +288,17 @@ def run_capture(
             f"camera {camera.camera_id} sends frames without a known polarizer layout: give --layout "
             "(imx250mzr, imx250myr, mono:A,B,C,D, color:A,B,C,D:BAYER), or --separate none without --rerun"
         )
-    if separate == "default" and layout is not None:  # the registry's default for the sensor
-        from polcam.separation import default_method
-
-        separate = default_method("stack" if layout.is_color else "mono-stack")
     if separate_options and separate is None:
         raise MethodError(f"separation options {sorted(separate_options)} given without a separation method")
-    if separate is not None:
-        from polcam.separation import method_spec
-        from polcam.separation._registry import check_options
+    separation = None
+    if separate is not None and layout is not None:  # resolved once for the sensor ("default": the registry's)
+        from polcam.separation import layout_form, resolve_separation
 
         if separate == "imin" and separate_options:  # computed from the live maps, not by separate()
             raise MethodError(f"the live imin layers take no options; got {sorted(separate_options)}")
-        spec = method_spec(separate)
-        check_options(separate, dict(separate_options or {}))
-        if layout is not None and not layout.is_color and not spec.mono:
-            from polcam.separation import methods
-
-            raise MethodError(
-                f"separation method {separate!r} needs a colour sensor; camera layout is {layout}; "
-                f"for mono use one of {', '.join(m for m in methods() if method_spec(m).mono)} or none"
-            )
+        separation = resolve_separation(None if separate == "default" else separate, layout_form(layout),
+                                        separate_options, got=f"a camera of the mono layout {layout}")
+        separate = separation.method
     cal_file: str | None = None
     cal_sha: str | None = None
     if calibration is not None:
@@ -346,7 +336,7 @@ def run_capture(
     live: LiveProcessor | None = None
     if live_wanted:
         assert layout is not None
-        live = LiveProcessor(layout, sink=sink, separate=separate, separate_options=separate_options,
+        live = LiveProcessor(layout, sink=sink, separate=separation, separate_options=None,
                              counters=counters, workers=live_workers,
                              calibration=calibration, hold_illuminant=hold_illuminant)
 

@@ -109,7 +109,7 @@ def run(*, scenes: Sequence[str], methods: Sequence[str], size: int = 96, frames
     from polcam.bench.quality import score
     from polcam.errors import MethodError
     from polcam.separation import separate
-    from polcam.separation._registry import estimated_illuminant, takes_illuminant
+    from polcam.separation import estimated_illuminant, takes_illuminant
     from polcam.synth.render import render
     from polcam.synth.scenes import scene
 

@@ -26,7 +26,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from polcam.io.listing import raw_files_in
 
     out: Path = args.out
-    method = args.demosaic  # None: the demosaicing registry's default for each frame's layout
+    demosaic = args.demosaic  # None: the demosaicing registry's default for each frame's layout
     print(f"polcam {__version__} demo: raw frames in {src} -> {out}")
     n = len(raw_files_in(src))
     capture_dir = out / "capture"
@@ -40,14 +40,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
         if code:
             return code
     captured = raw_files_in(capture_dir)
-    print(f"2/3 demosaic ({method or 'the default method for each layout'}) and Stokes maps at full resolution -> {out / 'stokes'}")
-    summary = run_stokes(captured, out / "stokes", layout=None, method=method, resolution="full", fmt="exr")
+    print(f"2/3 demosaic ({demosaic or 'the default method for each layout'}) and Stokes maps at full resolution -> {out / 'stokes'}")
+    summary = run_stokes(captured, out / "stokes", layout=None, demosaic=demosaic, resolution="full", fmt="exr")
     if summary["failed"]:
         return 1
     print(f"3/3 separation at the polarizer-cell resolution ({default_methods_text()}) -> "
           f"{out / 'layers'}; Rerun recording {out / 'demo.rrd'}")
     sep = ["--method", args.separate] if args.separate else []
-    dem = ["--demosaic", method] if method else []
+    dem = ["--demosaic", demosaic] if demosaic else []
     code = _run("process", [str(out / "capture"), "-o", str(out / "layers"), *dem,
                  "--rerun", str(out / "demo.rrd"), "--quiet", *sep])
     print(f"demo done: {len(captured)} frame(s) in {out.resolve()}: capture/ (raw frames + sidecars), "

@@ -52,7 +52,7 @@ def cmd_process(args: argparse.Namespace) -> int:
     if not jobs and not problems:
         print(f"error: no raw frames found in {', '.join(map(str, args.inputs))}", file=sys.stderr)
         return 2
-    proc.check_run(opts, jobs)
+    separations = proc.check_run(opts, jobs)     # the run's separation per input form, resolved once
     sizes = _declared_sizes(jobs)
     if args.calibration is not None:
         _check_calibration(args.calibration, sizes)
@@ -61,21 +61,21 @@ def cmd_process(args: argparse.Namespace) -> int:
         client = proc.connect_scheduler(args.scheduler, timeout=args.scheduler_timeout)
     try:
         check_output(args.out, frame_bytes=_output_bytes(opts, jobs, sizes))
-        return _locked(args, opts, jobs, problems, client, default_workers)
+        return _locked(args, opts, separations, jobs, problems, client, default_workers)
     finally:
         if client is not None:
             client.close()
 
 
-def _locked(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[dict[str, str]], client: Any,
-            default_workers: Any) -> int:
+def _locked(args: argparse.Namespace, opts: Any, separations: dict[str, Any], jobs: list[Any],
+            problems: list[dict[str, str]], client: Any, default_workers: Any) -> int:
     with OutputLock(args.out) as lock:
         if lock.taken_over:
             print(f"note: {args.out}: took over the lock left by PID {lock.taken_over.get('pid')} on "
                   f"{lock.taken_over.get('host')} (no longer running)", file=sys.stderr)
         reserve = SummaryReserve(args.out, len(jobs) + len(problems))
         try:
-            return _run(args, opts, jobs, problems, reserve, client, default_workers)
+            return _run(args, opts, separations, jobs, problems, reserve, client, default_workers)
         finally:
             reserve.release()
 
@@ -115,8 +115,8 @@ def _output_bytes(opts: Any, jobs: Sequence[Any], sizes: dict[str, tuple[int, in
     return 0
 
 
-def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[dict[str, str]],
-         reserve: SummaryReserve, client: Any, default_workers: Any) -> int:
+def _run(args: argparse.Namespace, opts: Any, separations: dict[str, Any], jobs: list[Any],
+         problems: list[dict[str, str]], reserve: SummaryReserve, client: Any, default_workers: Any) -> int:
     import signal
 
     from polcam import process as proc
@@ -182,7 +182,7 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
         state["computing"] = in_process
         try:
             proc.run(jobs, opts, workers=workers, scheduler=client, force=args.force, on_result=on_result,
-                     stop=lambda: state["stop"], abort=lambda: state["abort"])
+                     stop=lambda: state["stop"], abort=lambda: state["abort"], separations=separations)
         except KeyboardInterrupt:  # raised by on_signal to stop now (run() reported the frame cancelled)
             pass
     finally:

@@ -62,17 +62,19 @@ def _dolp_text(d: dict[str, float]) -> str:
             f"mean {d['mean']:.3f}, median {d['median']:.3f}")
 
 
-def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, method: str | None,
+def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, demosaic: str | None,
                resolution: str, fmt: str, quiet: bool = False,
                max_pixels: int | None = None) -> dict[str, Any]:
     """Every frame of ``files`` through the pipeline's Stokes products into ``out_dir/<stem>/``.
 
     Returns the summary written to ``out_dir/summary.json`` (``done``,
-    ``failed``: input and error of each bad frame, ``frames``: each frame's meta).
+    ``failed``: input and error of each bad frame, ``frames``: each frame's meta).  ``demosaic``:
+    the demosaicing method (None: the registry's default for each frame's layout).
     """
     from polcam.io import read_frame
     from polcam.io.atomic import atomic_write
-    from polcam.pipeline import PRODUCTS, default_demosaic, require_layout, run_frame
+    from polcam.demosaicing import resolve_demosaic
+    from polcam.pipeline import PRODUCTS, require_layout, run_frame
     from polcam.sinks.files import write_meta, write_products
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -82,12 +84,13 @@ def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, meth
         t0 = time.perf_counter()
         try:
             frame = require_layout(read_frame(path, layout=layout, max_pixels=max_pixels), str(path))
-            result = run_frame(frame, demosaic=method, resolution=resolution, stokes_products=PRODUCTS)
+            dem = resolve_demosaic(demosaic, frame.layout)
+            result = run_frame(frame, demosaic=dem, resolution=resolution, stokes_products=PRODUCTS)
             target = out_dir / path.stem
             lit = dolp_of_lit(result.products["s0"], result.products["dolp"],
                               lit_floor(frame.black_level, frame.white_level))
             meta = {"input": str(path), "layout": str(frame.layout),
-                    "demosaic": method or default_demosaic(frame.layout),
+                    "demosaic": dem.method,
                     "resolution": resolution, "polcam_version": __version__,
                     "bit_depth": frame.bit_depth, "black_level": frame.black_level,
                     "white_level": frame.white_level,
@@ -121,7 +124,7 @@ def cmd_stokes(args: argparse.Namespace) -> int:
         return 2
     check_run_options(layout=args.layout, demosaic=args.demosaic, resolution=args.resolution,
                       fmt=args.format)
-    summary = run_stokes(files, args.out, layout=args.layout, method=args.demosaic,
+    summary = run_stokes(files, args.out, layout=args.layout, demosaic=args.demosaic,
                          resolution=args.resolution, fmt=args.format, quiet=args.quiet,
                          max_pixels=args.max_pixels)
     print(f"{summary['done']} frame(s) written to {args.out}, {len(summary['failed'])} failed")

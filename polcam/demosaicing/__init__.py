@@ -23,13 +23,16 @@ from typing import Any
 from polcam.demosaicing._registry import (
     RESOLUTIONS,
     MethodSpec,
+    ResolvedDemosaic,
     default_method,
     demosaic,
     method_spec,
     methods,
     mosaic_stack,
     register,
+    resolve_demosaic,
     to_float,
+    unregister,
 )
 
 #: Modules of this package that are not methods.
@@ -48,5 +51,5 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["DEMOSAIC_METHODS", "RESOLUTIONS", "MethodSpec", "default_method", "demosaic", "method_spec",
-           "methods", "mosaic_stack", "register", "to_float"]
+__all__ = ["DEMOSAIC_METHODS", "RESOLUTIONS", "MethodSpec", "ResolvedDemosaic", "default_method", "demosaic",
+           "method_spec", "methods", "mosaic_stack", "register", "resolve_demosaic", "to_float", "unregister"]

@@ -1,8 +1,9 @@
 """The registry of demosaicing methods and the :func:`demosaic` dispatcher.
 
 A method module registers ``fn(mosaic (H, W) float32, layout) -> stack`` with
-:func:`register`; :func:`demosaic` checks the input once (layout, size, dtype,
-values) and calls it.  :func:`to_float` (raw counts to linear floats) and
+:func:`register`; :func:`resolve_demosaic` turns a method name (or None, the
+default for a layout) and a layout into a checked :class:`ResolvedDemosaic`, and
+:func:`demosaic` checks the input once (size, dtype, values) and calls it.  :func:`to_float` (raw counts to linear floats) and
 :func:`mosaic_stack` (the forward model: what a sensor of a layout records of a
 full stack) live here too.
 """
@@ -11,17 +12,18 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from polcam._names import lookup, ordered
 from polcam.demosaicing._lattice import bilinear_cells
 from polcam.errors import FrameReadError, LayoutError, MethodError
 from polcam.frame import Frame
 from polcam.mosaic import Layout, parse_layout
+from polcam.registry import Registry
 
-__all__ = ["DemosaicFn", "MethodSpec", "RESOLUTIONS", "default_method", "demosaic", "method_spec",
-           "methods", "mosaic_stack", "register", "to_float"]
+__all__ = ["DemosaicFn", "MethodSpec", "RESOLUTIONS", "ResolvedDemosaic", "default_method", "demosaic",
+           "method_spec", "methods", "mosaic_stack", "register", "resolve_demosaic", "to_float", "unregister"]
 
 #: ``fn(mosaic (H, W) float32, layout) -> stack`` (full or cell resolution).
 DemosaicFn = Callable[[np.ndarray, Layout], np.ndarray]
@@ -59,17 +61,14 @@ class MethodSpec:
     reference: str = ""
 
 
-_METHODS: dict[str, MethodSpec] = {}
-
-# The order methods() lists methods in (registered methods not listed here follow, sorted).
-_ORDER = ("bilinear", "eari", "lmmse")
-
-#: The method :func:`demosaic` runs when none is named, per kind of layout: the best
-#: polcam has (docs/demosaic.md says why; docs/benchmarks.md has the figures); process,
-#: capture and the demo use the same.  Colour: ``lmmse``, the best method on the real
-#: stacks on every metric and within the 1 s budget per 2448 x 2048 frame (the
-#: validation set ranks the slower ``lmmse-eari`` blend first).
-_DEFAULTS = {"color": "lmmse", "mono": "eari"}
+#: Every registered demosaicing method.  Listing order: ``order`` first (registered methods
+#: not listed follow, sorted).  Defaults: the method :func:`demosaic` runs when none is named,
+#: per kind of layout: the best polcam has (docs/demosaic.md says why; docs/benchmarks.md has
+#: the figures); process, capture and the demo use the same.  Colour: ``lmmse``, the best
+#: method on the real stacks on every metric and within the 1 s budget per 2448 x 2048 frame
+#: (the validation set ranks the slower ``lmmse-eari`` blend first).
+REGISTRY: Registry[MethodSpec] = Registry("demosaicing method", order=("bilinear", "eari", "lmmse"),
+                                          defaults={"color": "lmmse", "mono": "eari"})
 
 
 def register(name: str, *, cell: DemosaicFn | None = None, mono: bool = True, color: bool = True,
@@ -81,25 +80,80 @@ def register(name: str, *, cell: DemosaicFn | None = None, mono: bool = True, co
     """
 
     def deco(fn: DemosaicFn) -> DemosaicFn:
-        _METHODS[name] = MethodSpec(name, fn, cell, mono, color, reference)
+        REGISTRY.add(name, MethodSpec(name, fn, cell, mono, color, reference))
         return fn
 
     return deco
 
 
+def unregister(name: str) -> MethodSpec:
+    """Remove the method ``name`` from the registry; returns its :class:`MethodSpec`.
+    :class:`MethodError` if it is not registered."""
+    return REGISTRY.remove(name)
+
+
 def methods() -> tuple[str, ...]:
     """Registered method names, in polcam's canonical order."""
-    return ordered(_METHODS, _ORDER)
+    return REGISTRY.names()
 
 
 def method_spec(name: str) -> MethodSpec:
     """The :class:`MethodSpec` of ``name``; :class:`MethodError` if unknown."""
-    return lookup(_METHODS, name, what="demosaicing method", order=_ORDER)
+    return REGISTRY.get(name)
 
 
 def default_method(layout: str | Layout) -> str:
     """The method :func:`demosaic` runs for ``layout`` when none is named."""
-    return _DEFAULTS["color" if parse_layout(layout).is_color else "mono"]
+    return REGISTRY.default("color" if parse_layout(layout).is_color else "mono")
+
+
+@dataclass(frozen=True)
+class ResolvedDemosaic:
+    """A demosaicing method resolved for one layout: what :func:`demosaic` runs, checked once.
+
+    Made by :func:`resolve_demosaic`; taken by :func:`demosaic` (``method=``),
+    :func:`polcam.pipeline.run_frame` and the commands as it is.
+
+    Attributes
+    ----------
+    spec
+        The method's registry entry.
+    layout
+        The sensor layout it demosaics (the method takes its kind, mono or colour).
+    """
+
+    spec: MethodSpec
+    layout: Layout
+
+    @property
+    def method(self) -> str:
+        """The method's registry name."""
+        return self.spec.name
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # to another process by name: the registry entry there is the same method
+        return (resolve_demosaic, (self.method, self.layout))
+
+
+def resolve_demosaic(method: str | None, layout: str | Layout) -> ResolvedDemosaic:
+    """Resolve a demosaicing method for ``layout``: the name looked up (None: :func:`default_method`
+    of the layout) and checked to take the layout's kind.
+
+    Raises
+    ------
+    LayoutError
+        An unknown layout.
+    MethodError
+        An unknown method, or one that does not take this kind of layout (mono/colour).
+    """
+    lay = parse_layout(layout)
+    spec = REGISTRY.get(default_method(lay) if method is None else method)
+    if not (spec.color if lay.is_color else spec.mono):
+        kind = "colour" if lay.is_color else "mono"
+        takes = [m for m in methods() if (REGISTRY.get(m).color if lay.is_color else REGISTRY.get(m).mono)]
+        raise MethodError(f"demosaicing method {spec.name!r} does not take {kind} layouts such as {lay}; "
+                          f"{kind} methods: {', '.join(takes)}")
+    return ResolvedDemosaic(spec, lay)
 
 
 def to_float(raw: np.ndarray | Frame, *, black_level: float = 0.0,
@@ -152,7 +206,7 @@ def demosaic(
     raw: np.ndarray | Frame,
     *,
     layout: str | Layout | None = None,
-    method: str | None = None,
+    method: str | ResolvedDemosaic | None = None,
     resolution: str = "full",
 ) -> np.ndarray:
     """Demosaic a polarization mosaic into a stack of four angle images.
@@ -167,7 +221,8 @@ def demosaic(
         Sensor layout name or :class:`~polcam.mosaic.Layout`.
     method
         A registered method name (:func:`methods`); ``None``: the best method for
-        the layout, :func:`default_method`.
+        the layout, :func:`default_method`; or a :class:`ResolvedDemosaic`, run as
+        it is on its layout (``layout``, when given, must be the same).
     resolution
         ``"full"``: one output pixel per input pixel; ``"cell"``: one per 2x2
         polarizer cell (H and W halved).
@@ -194,18 +249,19 @@ def demosaic(
     FrameReadError
         A raw array that is not a finite 2-D integer or float array.
     """
-    if layout is None:
-        if isinstance(raw, Frame) and raw.layout is not None:
-            layout = raw.layout
-        else:
-            raise LayoutError("no layout given: pass layout= (e.g. 'imx250mzr' or 'imx250myr')")
-    lay = parse_layout(layout)
-    spec = method_spec(default_method(lay) if method is None else method)
-    if not (spec.color if lay.is_color else spec.mono):
-        kind = "colour" if lay.is_color else "mono"
-        takes = [m for m in methods() if (_METHODS[m].color if lay.is_color else _METHODS[m].mono)]
-        raise MethodError(f"demosaicing method {spec.name!r} does not take {kind} layouts such as {lay}; "
-                          f"{kind} methods: {', '.join(takes)}")
+    if isinstance(method, ResolvedDemosaic):
+        resolved = method
+        if layout is not None and parse_layout(layout) != resolved.layout:
+            raise MethodError(f"demosaicing method {resolved.method!r} was resolved for layout "
+                              f"{resolved.layout}; got layout {layout}")
+    else:
+        if layout is None:
+            if isinstance(raw, Frame) and raw.layout is not None:
+                layout = raw.layout
+            else:
+                raise LayoutError("no layout given: pass layout= (e.g. 'imx250mzr' or 'imx250myr')")
+        resolved = resolve_demosaic(method, layout)
+    spec, lay = resolved.spec, resolved.layout
     if resolution not in RESOLUTIONS:
         raise MethodError(f"resolution {resolution!r}: expected 'full' or 'cell'")
     img = to_float(raw)

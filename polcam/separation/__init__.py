@@ -2,7 +2,10 @@
 
 Every module in this package whose name does not start with an underscore is
 a method module; importing the package imports them all, and each registers
-itself with :func:`polcam.separation._registry.register`.
+itself with :func:`register`.  :func:`resolve_separation` turns a method name (or
+None, the default for an input form) and its options into a
+:class:`ResolvedSeparation`, checked once, which :func:`separate` and the
+commands take as it is.
 """
 
 from __future__ import annotations
@@ -11,13 +14,21 @@ import importlib
 import pkgutil
 
 from polcam.separation._registry import (
+    MethodSpec,
+    ResolvedSeparation,
     Separation,
+    check_options,
     default_method,
+    estimated_illuminant,
     input_form,
+    layout_form,
     method_spec,
     methods,
     register,
+    resolve_separation,
     separate,
+    takes_illuminant,
+    unregister,
 )
 
 for _mod in pkgutil.iter_modules(__path__):
@@ -33,5 +44,6 @@ def __getattr__(name: str) -> tuple[str, ...]:
         return methods()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-__all__ = ["METHODS", "Separation", "default_method", "input_form", "method_spec", "methods", "register",
-           "separate"]
+__all__ = ["METHODS", "MethodSpec", "ResolvedSeparation", "Separation", "check_options", "default_method",
+           "estimated_illuminant", "input_form", "layout_form", "method_spec", "methods", "register",
+           "resolve_separation", "separate", "takes_illuminant", "unregister"]

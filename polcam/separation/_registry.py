@@ -7,16 +7,19 @@ import time
 import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
-from polcam._names import lookup, ordered
 from polcam.errors import MethodError
+from polcam.mosaic import Layout, parse_layout
+from polcam.registry import Registry
 from polcam.separation._option_types import describe, matches
 
-__all__ = ["Separation", "MethodSpec", "register", "separate", "methods", "method_spec",
-           "default_method", "input_form", "takes_illuminant", "estimated_illuminant"]
+__all__ = ["Separation", "MethodSpec", "ResolvedSeparation", "register", "unregister", "separate", "methods",
+           "method_spec", "default_method", "input_form", "layout_form", "resolve_separation", "check_options",
+           "takes_illuminant", "estimated_illuminant"]
 
 
 @dataclass
@@ -75,12 +78,39 @@ class MethodSpec:
     options: tuple[str, ...] | None = None
     option_types: Mapping[str, Any] | None = None
 
+    def accepted(self) -> tuple[str, ...] | None:
+        """The option names the method takes (its declared ``options``, else its signature's keyword
+        parameters after the image); None: any (a signature with ``**options``)."""
+        if self.options is not None:
+            return tuple(self.options)
+        try:
+            params = inspect.signature(self.fn).parameters
+        except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
+            return None
+        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+            return None
+        return tuple(n for n, p in list(params.items())[1:]
+                     if p.kind in (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD))
 
-_METHODS: dict[str, MethodSpec] = {}
+    def takes(self, option: str) -> bool:
+        """Whether the method takes the keyword option ``option``."""
+        accepted = self.accepted()
+        return accepted is None or option in accepted
 
-# The order polcam.METHODS lists methods in (registered methods not listed here follow).
-_ORDER = ("polarized-residual", "tensor", "tensor-tau", "tensor-plain", "imin", "wen21", "tan05", "yoon06",
-          "shen08", "shen09", "yang10", "shen13", "akashi16", "yamamoto19")
+
+#: The input forms :func:`separate` accepts (see :func:`input_form`).
+FORMS: tuple[str, ...] = ("stack", "mono-stack", "image")
+
+#: Every registered separation method.  Listing order: polcam.METHODS (registered methods not
+#: listed follow).  Defaults: the method ``separate`` runs when none is named, per input form;
+#: for stacks the one the default-method rule picks (docs/benchmarks.md, "Default method rule";
+#: polcam.bench.default_rule) from the recorded table tests/separation/default_rule_table.json.
+REGISTRY: Registry[MethodSpec] = Registry(
+    "separation method",
+    order=("polarized-residual", "tensor", "tensor-tau", "tensor-plain", "imin", "wen21", "tan05", "yoon06",
+           "shen08", "shen09", "yang10", "shen13", "akashi16", "yamamoto19"),
+    defaults={"stack": "wen21", "mono-stack": "imin", "image": "yang10"},
+)
 
 
 def register(name: str, *, kind: str, mono: bool = False, reference: str = "",
@@ -96,17 +126,17 @@ def register(name: str, *, kind: str, mono: bool = False, reference: str = "",
     types = dict(options) if isinstance(options, Mapping) else None
 
     def deco(fn: Callable[..., Any]) -> Callable[..., Any]:
-        _METHODS[name] = MethodSpec(name, fn, kind, mono, reference,
-                                    None if options is None else tuple(options), types)
+        REGISTRY.add(name, MethodSpec(name, fn, kind, mono, reference,
+                                      None if options is None else tuple(options), types))
         return fn
 
     return deco
 
 
-#: The method ``separate`` runs when none is named, per input form (see :func:`input_form`).
-#: Stacks: the one the default-method rule picks (docs/benchmarks.md, "Default method rule";
-#: polcam.bench.default_rule) from the recorded table tests/separation/default_rule_table.json.
-_DEFAULTS = {"stack": "wen21", "mono-stack": "imin", "image": "yang10"}
+def unregister(name: str) -> MethodSpec:
+    """Remove the method ``name`` from the registry (a method registered for a test or a session);
+    returns its :class:`MethodSpec`.  :class:`MethodError` if it is not registered."""
+    return REGISTRY.remove(name)
 
 
 def default_method(form: str) -> str:
@@ -115,10 +145,7 @@ def default_method(form: str) -> str:
     ``form``: ``"stack"`` ((4, H, W, 3) colour stack), ``"mono-stack"`` ((4, H, W))
     or ``"image"`` ((H, W, 3) RGB image); process, capture and the demo use the same.
     """
-    try:
-        return _DEFAULTS[form]
-    except KeyError:
-        raise MethodError(f"input form {form!r}: expected one of {', '.join(_DEFAULTS)}") from None
+    return REGISTRY.default(form)
 
 
 def input_form(shape: Sequence[int]) -> str:
@@ -136,14 +163,19 @@ def input_form(shape: Sequence[int]) -> str:
     )
 
 
+def layout_form(layout: str | Layout) -> str:
+    """The input form of what a sensor of ``layout`` demosaics into: ``"stack"`` (colour) or ``"mono-stack"``."""
+    return "stack" if parse_layout(layout).is_color else "mono-stack"
+
+
 def methods() -> tuple[str, ...]:
     """Registered method names, in polcam's canonical order."""
-    return ordered(_METHODS, _ORDER)
+    return REGISTRY.names()
 
 
 def method_spec(name: str) -> MethodSpec:
     """The :class:`MethodSpec` of ``name``; :class:`MethodError` if unknown."""
-    return lookup(_METHODS, name, what="separation method", order=_ORDER)
+    return REGISTRY.get(name)
 
 
 def _as_input(images: Any) -> tuple[np.ndarray, str, dict[str, Any]]:
@@ -168,13 +200,105 @@ def _as_input(images: Any) -> tuple[np.ndarray, str, dict[str, Any]]:
     return out, form, {"input_range": [lo, hi], "input_clipped": clipped}
 
 
-def takes_illuminant(method: str) -> bool:
+@dataclass(frozen=True)
+class ResolvedSeparation:
+    """A separation method resolved for one input form: the value that travels from a command to the method.
+
+    Made by :func:`resolve_separation` (the one place a method name is looked up, the default for
+    a form picked, the form checked against the method and the options checked against it) and
+    taken by :func:`separate` (``method=``), :func:`polcam.pipeline.run_frame`, ``polcam process``
+    and the live view of ``polcam capture`` as it is.
+
+    Attributes
+    ----------
+    spec
+        The method's registry entry.
+    form
+        The input form it runs on: ``"stack"``, ``"mono-stack"`` or ``"image"``.
+    options
+        Its keyword options (read-only), names and types checked.
+    """
+
+    spec: MethodSpec
+    form: str
+    options: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+
+    @property
+    def method(self) -> str:
+        """The method's registry name."""
+        return self.spec.name
+
+    def takes(self, option: str) -> bool:
+        """Whether the method takes the keyword option ``option``."""
+        return self.spec.takes(option)
+
+    def with_options(self, **options: Any) -> ResolvedSeparation:
+        """This resolution with ``options`` added (or replaced), each checked against the method."""
+        _check_options(self.spec, options)
+        return ResolvedSeparation(self.spec, self.form, MappingProxyType({**self.options, **options}))
+
+    def for_form(self, form: str, *, got: str | None = None) -> ResolvedSeparation:
+        """The same method and options for inputs of ``form``; :class:`MethodError` if it does not take
+        them (``got`` describes the input in the message)."""
+        _check_form(self.spec, form, got)
+        return ResolvedSeparation(self.spec, form, self.options)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # to another process by name: the registry entry there is the same method
+        return (resolve_separation, (self.method, self.form, dict(self.options)))
+
+
+def resolve_separation(method: str | None, form: str, options: Mapping[str, Any] | None = None, *,
+                       only_taken: bool = False, got: str | None = None) -> ResolvedSeparation:
+    """Resolve a separation method for inputs of ``form``, once: what :func:`separate` then runs.
+
+    Parameters
+    ----------
+    method
+        A registered name; None: :func:`default_method` of ``form``.
+    form
+        ``"stack"``, ``"mono-stack"`` or ``"image"`` (:func:`input_form`, :func:`layout_form`).
+    options
+        The method's keyword options.
+    only_taken
+        Drop the options the method does not take instead of refusing them (options meant for
+        whichever default method an input's form gets).
+    got
+        The input, for the message when the method does not take ``form`` (``"mono frames"``).
+
+    Raises
+    ------
+    MethodError
+        An unknown method or form; a method that does not take ``form``; an option it does not
+        take, or a value not of the option's type.
+    """
+    if form not in FORMS:
+        raise MethodError(f"input form {form!r}: expected one of {', '.join(FORMS)}")
+    spec = REGISTRY.get(REGISTRY.default(form) if method is None else method)
+    opts = dict(options or {})
+    if only_taken:
+        opts = {k: v for k, v in opts.items() if spec.takes(k)}
+    _check_options(spec, opts)
+    _check_form(spec, form, got)
+    return ResolvedSeparation(spec, form, MappingProxyType(opts))
+
+
+def _check_form(spec: MethodSpec, form: str, got: str | None) -> None:
+    """Refuse an input form the method does not take (mono stacks; images for stack methods)."""
+    if form == "mono-stack" and not spec.mono:
+        mono = ", ".join(m for m in methods() if REGISTRY.get(m).mono)
+        raise MethodError(f"method {spec.name!r} needs colour frames: got {got or 'a mono stack'}; "
+                          f"mono stacks are accepted by {mono}")
+    if form == "image" and spec.kind == "stack":
+        single = ", ".join(m for m in methods() if REGISTRY.get(m).kind == "single")
+        raise MethodError(f"method {spec.name!r} needs a (4, H, W, 3) polarization stack; got "
+                          f"{got or 'an RGB image'}. Single-image methods: {single}")
+
+
+def takes_illuminant(method: str | MethodSpec) -> bool:
     """Whether ``method`` takes an RGB ``illuminant`` option (so an estimate can be passed back to it)."""
-    try:
-        check_options(method, {"illuminant": [1.0, 1.0, 1.0]}, types=False)
-    except MethodError:
-        return False
-    return True
+    spec = method if isinstance(method, MethodSpec) else method_spec(method)
+    return spec.takes("illuminant")
 
 
 def estimated_illuminant(info: dict[str, Any]) -> list[float] | None:
@@ -191,7 +315,7 @@ def estimated_illuminant(info: dict[str, Any]) -> list[float] | None:
     return [float(v) for v in est]
 
 
-def check_options(method: str, options: dict[str, Any], *, types: bool = True) -> None:
+def check_options(method: str | MethodSpec, options: Mapping[str, Any], *, types: bool = True) -> None:
     """Refuse options ``method`` does not take, or (``types``) values not of the option's type.
 
     Raises
@@ -199,7 +323,7 @@ def check_options(method: str, options: dict[str, Any], *, types: bool = True) -
     MethodError
         Naming the option, and the options the method takes or the type expected.
     """
-    _check_options(method_spec(method), options, types=types)
+    _check_options(method if isinstance(method, MethodSpec) else method_spec(method), options, types=types)
 
 
 def _option_types(spec: MethodSpec) -> Mapping[str, Any]:
@@ -212,20 +336,12 @@ def _option_types(spec: MethodSpec) -> Mapping[str, Any]:
         return {}
 
 
-def _check_options(spec: MethodSpec, options: dict[str, Any], *, types: bool = True) -> None:
+def _check_options(spec: MethodSpec, options: Mapping[str, Any], *, types: bool = True) -> None:
     """Refuse keyword options the method does not take (its declared ``options``, else its signature),
     and values that are not of an option's type."""
-    if spec.options is not None:
-        accepted = list(spec.options)
-    else:
-        try:
-            params = inspect.signature(spec.fn).parameters
-        except (TypeError, ValueError):  # pragma: no cover - builtins without a signature
-            return
-        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-            return
-        accepted = [n for n, p in list(params.items())[1:]
-                    if p.kind in (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)]
+    accepted = spec.accepted()
+    if accepted is None:
+        return
     unknown = sorted(set(options) - set(accepted))
     if unknown:
         raise MethodError(
@@ -240,7 +356,7 @@ def _check_options(spec: MethodSpec, options: dict[str, Any], *, types: bool = T
             raise MethodError(f"option {key}={value!r} of method {spec.name!r}: expected {describe(hints[key])}")
 
 
-def separate(images: Any, *, method: str | None = None, **options: Any) -> Separation:
+def separate(images: Any, *, method: str | ResolvedSeparation | None = None, **options: Any) -> Separation:
     """Separate diffuse and specular reflection.
 
     Parameters
@@ -254,7 +370,8 @@ def separate(images: Any, *, method: str | None = None, **options: Any) -> Separ
         [0, 1] near edges, is taken as it is.
     method
         A name from :data:`polcam.METHODS`; None (the default): the best method for
-        the input's form, :func:`default_method`.
+        the input's form, :func:`default_method`; or a :class:`ResolvedSeparation`
+        of the input's form, run as it is (``options`` are added to its own).
     **options
         Keyword options of the method (see its module).
 
@@ -273,26 +390,26 @@ def separate(images: Any, *, method: str | None = None, **options: Any) -> Separ
         Unknown method; an input the method does not accept (its shape, an
         integer dtype, NaN or infinite values).
     """
-    spec = None if method is None else method_spec(method)
     arr, form, clipping = _as_input(images)
-    if spec is None:
-        spec = method_spec(default_method(form))
-        method = spec.name
-    if form == "mono-stack" and not spec.mono:
-        raise MethodError(
-            f"method {method!r} needs colour: got a mono stack of shape {arr.shape}; "
-            f"mono stacks are accepted by {', '.join(m for m in methods() if _METHODS[m].mono)}"
-        )
-    if form == "image" and spec.kind == "stack":
-        raise MethodError(
-            f"method {method!r} needs a (4, H, W, 3) polarization stack; got an image of "
-            f"shape {arr.shape}. Single-image methods: "
-            f"{', '.join(m for m in methods() if _METHODS[m].kind == 'single')}"
-        )
-    _check_options(spec, options)
-    reference = arr if form == "image" else arr.mean(axis=0)
+    if isinstance(method, ResolvedSeparation):
+        resolved = method.with_options(**options) if options else method
+        if resolved.form != form:
+            resolved = resolved.for_form(form, got=_describe(form, arr.shape))
+    else:
+        resolved = resolve_separation(method, form, options, got=_describe(form, arr.shape))
+    return _run(arr, resolved, clipping)
+
+
+def _describe(form: str, shape: tuple[int, ...]) -> str:
+    return f"{'a mono stack' if form == 'mono-stack' else 'an image' if form == 'image' else 'a stack'} of shape {shape}"
+
+
+def _run(arr: np.ndarray, resolved: ResolvedSeparation, clipping: dict[str, Any]) -> Separation:
+    """Call the resolved method on the clipped input and hold its result to the scale contract."""
+    spec, method = resolved.spec, resolved.method
+    reference = arr if resolved.form == "image" else arr.mean(axis=0)
     t0 = time.perf_counter()
-    out = spec.fn(reference if spec.kind == "single" else arr, **options)
+    out = spec.fn(reference if spec.kind == "single" else arr, **resolved.options)
     seconds = time.perf_counter() - t0
     diffuse, info = out if isinstance(out, tuple) else (out, {})
     diffuse = np.asarray(diffuse, dtype=np.float64)

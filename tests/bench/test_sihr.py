@@ -11,7 +11,7 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from polcam.bench import sihr
 from polcam.errors import FrameReadError, MethodError
-from polcam.separation._registry import _METHODS, register
+from polcam.separation import register, unregister
 
 
 def test_psnr_matches_skimage():
@@ -76,7 +76,7 @@ def _write_dataset(folder: Path, rng: np.random.Generator, shape=(24, 32)) -> di
 def identity_method():
     register("_toy_identity", kind="single")(lambda image: (image.copy(), {"note": 1}))
     yield "_toy_identity"
-    del _METHODS["_toy_identity"]
+    unregister("_toy_identity")
 
 
 def test_run_scores_against_the_ground_truth(tmp_path, identity_method):

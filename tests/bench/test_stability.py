@@ -19,9 +19,9 @@ def test_perturbation_leaves_clipped_samples_and_is_tiny():
 
 
 def test_a_method_without_switches_does_not_jump_and_one_with_a_switch_does():
-    from polcam.separation import _registry
+    from polcam import separation
 
-    @_registry.register("test-rounding-switch", kind="single")
+    @separation.register("test-rounding-switch", kind="single")
     def switch(image):
         # halves the pixels whose float32 value has an odd last bit: any change of the input flips it
         odd = (np.asarray(image, np.float32).view(np.int32) & 1).astype(bool)
@@ -30,7 +30,7 @@ def test_a_method_without_switches_does_not_jump_and_one_with_a_switch_does():
     try:
         rows = run(scenes=["Bunny5"], methods=["imin", "test-rounding-switch"], size=32, frames=3)
     finally:
-        del _registry._METHODS["test-rounding-switch"]
+        separation.unregister("test-rounding-switch")
     imin, sw = rows
     assert (imin.scene, imin.method, sw.method) == ("Bunny5", "imin", "test-rounding-switch")
     assert imin.jump < 1e-5 and imin.jump_share == 0.0

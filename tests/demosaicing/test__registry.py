@@ -96,13 +96,12 @@ def test_registry_lists_methods_and_defaults() -> None:
         np.testing.assert_array_equal(demosaic(raw, layout=lay), demosaic(raw, layout=lay, method=best))
 
 
-def test_a_registered_method_is_listed_and_dispatched(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_registered_method_is_listed_and_dispatched() -> None:
     """A method registered after import appears in DEMOSAIC_METHODS and is called; one that
-    declares no colour support is refused on a colour layout with a clear error."""
+    declares no colour support is refused on a colour layout with a clear error; unregistered,
+    it is gone."""
     import polcam.demosaicing as dm
-    from polcam.demosaicing import _registry
 
-    monkeypatch.setattr(_registry, "_METHODS", dict(_registry._METHODS))
     calls = []
 
     def half(img, lay):
@@ -110,9 +109,20 @@ def test_a_registered_method_is_listed_and_dispatched(monkeypatch: pytest.Monkey
         return np.stack([img * 0.5] * 4)
 
     dm.register("half-test", color=False, reference="test")(half)
-    assert "half-test" in dm.DEMOSAIC_METHODS
-    raw = np.full((H, W), 0.5, np.float32)
-    np.testing.assert_allclose(demosaic(raw, layout=MZR, method="half-test"), 0.25)
-    assert calls == [MZR.name]
-    with pytest.raises(MethodError, match="'half-test' does not take colour layouts"):
-        demosaic(raw, layout=MYR, method="half-test")
+    try:
+        assert "half-test" in dm.DEMOSAIC_METHODS
+        raw = np.full((H, W), 0.5, np.float32)
+        np.testing.assert_allclose(demosaic(raw, layout=MZR, method="half-test"), 0.25)
+        assert calls == [MZR.name]
+        with pytest.raises(MethodError, match="'half-test' does not take colour layouts"):
+            demosaic(raw, layout=MYR, method="half-test")
+        resolved = dm.resolve_demosaic("half-test", MZR)    # resolved once, then run as it is
+        np.testing.assert_allclose(demosaic(raw, method=resolved), 0.25)
+        assert calls == [MZR.name, MZR.name]
+        with pytest.raises(MethodError, match="resolved for layout"):
+            demosaic(raw, layout=MYR, method=resolved)
+    finally:
+        dm.unregister("half-test")
+    assert "half-test" not in dm.DEMOSAIC_METHODS
+    with pytest.raises(MethodError, match="'half-test' is unknown"):
+        dm.method_spec("half-test")

@@ -43,7 +43,7 @@ import polcam
 from polcam import pipeline
 from polcam.frame import Frame
 from polcam.io import read_frame
-from polcam.separation._registry import method_spec
+from polcam.separation import method_spec
 
 HERE = pathlib.Path(__file__).resolve().parent
 FIXTURES = HERE.parent.parent / "fixtures" / "raw"
@@ -62,7 +62,7 @@ def crops() -> dict[str, Frame]:
 
 
 def inputs(frames: dict[str, Frame]) -> dict[str, np.ndarray]:
-    return {form: np.ascontiguousarray(pipeline.to_stack(f, method="bilinear", resolution="cell"),
+    return {form: np.ascontiguousarray(pipeline.to_stack(f, demosaic="bilinear", resolution="cell"),
                                        dtype=np.float32)
             for form, f in frames.items()}
 
@@ -75,7 +75,7 @@ def compute() -> dict[str, np.ndarray]:
         for m in polcam.DEMOSAIC_METHODS:
             for res in ("full", "cell"):
                 out[f"demosaic/{m}/{form}/{res}"] = np.asarray(
-                    pipeline.to_stack(f, method=m, resolution=res), dtype=np.float32)
+                    pipeline.to_stack(f, demosaic=m, resolution=res), dtype=np.float32)
         lm = pipeline.live_maps(f.mosaic, f.layout, black_level=f.black_level, white_level=f.white_level)
         for k in ("ic", "dolp", "aolp", "diffuse", "specular"):
             out[f"live/{k}/{form}"] = np.asarray(getattr(lm, k))
@@ -96,7 +96,7 @@ def compute() -> dict[str, np.ndarray]:
             print(m, form, f"{res.info.get('seconds', 0):.2f} s", file=sys.stderr)
     frame = read_frame(FIXTURES / "synthetic_bunny5.png")
     frame.mosaic = np.ascontiguousarray(frame.mosaic[48:208, 48:208])
-    bunny = pipeline.to_stack(frame, method="bilinear", resolution="cell")
+    bunny = pipeline.to_stack(frame, demosaic="bilinear", resolution="cell")
     out["input/bunny"] = bunny = np.ascontiguousarray(bunny, dtype=np.float32)
     for m in ("wen21", "polarized-residual"):
         out[f"sep/{m}/bunny/diffuse"] = polcam.separate(bunny, method=m).diffuse

@@ -8,7 +8,7 @@ import pytest
 import polcam
 from polcam.errors import MethodError
 from polcam.separation import METHODS, method_spec, separate
-from polcam.separation._registry import _METHODS, register
+from polcam.separation import register, unregister
 
 
 def test_methods_are_exported():
@@ -55,7 +55,7 @@ def toy_methods():
     register("_toy_single", kind="single")(lambda img, gain=2.0: (img * gain - 0.1, {"gain": gain}))
     register("_toy_stack", kind="stack")(lambda st: st.min(axis=0))
     yield
-    del _METHODS["_toy_single"], _METHODS["_toy_stack"]
+    unregister("_toy_single"), unregister("_toy_stack")
 
 
 def test_scale_contract_and_info(toy_methods):
@@ -81,7 +81,7 @@ def test_kind_checks(toy_methods):
 
 
 def test_declared_options_of_a_kwargs_method_are_checked_before_it_runs():
-    from polcam.separation._registry import check_options
+    from polcam.separation import check_options
 
     calls = []
 
@@ -101,7 +101,7 @@ def test_declared_options_of_a_kwargs_method_are_checked_before_it_runs():
         separate(np.zeros((4, 4, 4, 3)), method="_toy_open", gamma=1)   # undeclared: passed on
         assert calls == [{"gamma": 1}]
     finally:
-        del _METHODS["_toy_kwargs"], _METHODS["_toy_open"]
+        unregister("_toy_kwargs"), unregister("_toy_open")
 
 
 def test_unknown_options_are_refused_by_name(toy_methods):
@@ -132,6 +132,6 @@ def test_option_types_are_checked_before_the_method_runs():
         separate(img, method="_toy_typed", levels=3, scale=2, name=None)     # an int is a valid float
         assert calls == [(3, 2, None)]
     finally:
-        del _METHODS["_toy_typed"], _METHODS["_toy_declared"]
+        unregister("_toy_typed"), unregister("_toy_declared")
     with pytest.raises(MethodError, match=r"option max_iter='abc' of method 'tensor': expected an integer"):
         separate(np.full((4, 8, 8, 3), 0.5), method="tensor", max_iter="abc")

@@ -12,7 +12,7 @@ import pytest
 from polcam.bench.quality import psnr
 from polcam.errors import MethodError
 from polcam.separation import separate
-from polcam.separation._registry import _METHODS, register
+from polcam.separation import register, unregister
 from polcam.separation.yamamoto19 import high_emphasis, separate_yamamoto19
 from polcam.separation.yang10 import separate_yang10
 from polcam.synth.dichromatic import banded_scene
@@ -35,7 +35,7 @@ def toy_bases():
     register("_toy_remnant", kind="single")(remnant)
     register("_toy_exact", kind="single")(lambda image: (TRUTH.copy(), {"note": "exact"}))
     yield
-    del _METHODS["_toy_remnant"], _METHODS["_toy_exact"]
+    unregister("_toy_remnant"), unregister("_toy_exact")
 
 
 def test_high_emphasis_filter_closed_form():
