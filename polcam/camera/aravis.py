@@ -30,7 +30,7 @@ from polcam.camera.aravis_lib import (
     list_devices,
     load_aravis,
 )
-from polcam.camera.registry import register_backend
+from polcam.camera.registry import CameraFlag, register_backend
 from polcam.errors import CameraUnavailableError, LayoutError, PixelFormatError
 from polcam.io.packing import unpack
 from polcam.io.readers import interleave_angles
@@ -693,4 +693,22 @@ class AravisCamera(Camera):
         return out
 
 
-register_backend(None, AravisCamera, default=True)  # every device id no other backend's prefix claims
+def _packet_size_option(text: Any) -> int | str:
+    """``--packet-size``: a number of bytes or ``"auto"``; :class:`CameraSettingError` otherwise."""
+    size = str(text).strip().lower()
+    if size != "auto" and not size.isdigit():
+        raise CameraSettingError(f"--packet-size {text!r}: expected a number of bytes or 'auto'")
+    return "auto" if size == "auto" else int(size)
+
+
+#: Every device id no other backend's prefix claims, with the GenICam stream's flags.
+register_backend(None, AravisCamera, default=True, name="aravis", flags=(
+    CameraFlag("--buffers", "n_buffers", "Aravis buffer pool size (default 16)", {"type": int, "default": 16}),
+    CameraFlag("--packet-size", "packet_size",
+               "GigE packet size in bytes (default 1500; 8192/9000 with jumbo frames end to end; "
+               "'auto': Aravis probes the largest size the path carries)", {"default": "1500"},
+               convert=_packet_size_option, skip_none=True),
+    CameraFlag("--socket-buffer", "socket_buffer_bytes",
+               "GigE receive socket buffer (default: Aravis' automatic size)",
+               {"type": int, "metavar": "BYTES"}, skip_none=True),
+))

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from polcam.camera.base import Camera, CameraNotFoundError, CameraSettingError, CapturedFrame
-from polcam.camera.registry import register_backend
+from polcam.camera.registry import CameraFlag, register_backend
 from polcam.errors import PixelFormatError, PolcamError
 from polcam.frame import Frame
 from polcam.mosaic import Layout, parse_layout
@@ -336,4 +336,7 @@ class ReplayCamera(Camera):
         self._finished.set()
 
 
-register_backend("replay:", ReplayCamera)
+#: ``replay:DIR``; ``--loop`` is its own flag, and ``--frame-rate`` its playback rate (a constructor keyword).
+register_backend("replay:", ReplayCamera, name="replay", open_settings=("frame_rate",), flags=(
+    CameraFlag("--loop", "loop", "replay: start over after the last file", {"action": "store_true"}),
+))

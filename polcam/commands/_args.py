@@ -15,7 +15,8 @@ import sys
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
-from polcam.camera.base import TRIGGER_MODES, Camera, CameraSettingError
+from polcam.camera.base import TRIGGER_MODES, Camera
+from polcam.camera.registry import backend_for, camera_flags
 from polcam.errors import CameraUnavailableError, PolcamError
 
 __all__ = [
@@ -149,9 +150,10 @@ def add_camera_arguments(parser: Any, *, layout: bool = True) -> None:
 
     Settings (``--pixel-format``, ``--layout``, ``--exposure``, ``--gain``,
     ``--roi``, ``--frame-rate``, ``--trigger``, ``--reverse-x``,
-    ``--reverse-y``) and the connection (``--timeout``, ``--loop``,
-    ``--buffers``, ``--packet-size``, ``--socket-buffer``); read them back
-    with :func:`camera_options` and :func:`configure_camera`.
+    ``--reverse-y``), ``--timeout``, and the flags each camera backend declares
+    (:func:`polcam.camera.registry.camera_flags`: ``--loop`` for replay;
+    ``--buffers``, ``--packet-size``, ``--socket-buffer`` for Aravis); read
+    them back with :func:`camera_options` and :func:`configure_camera`.
 
     Parameters
     ----------
@@ -177,13 +179,8 @@ def add_camera_arguments(parser: Any, *, layout: bool = True) -> None:
     p.add_argument("--reverse-y", action="store_true", default=None, help="mirror the image top-bottom")
     p.add_argument("--timeout", type=float, default=10.0,
                    help="give up when no frame arrives for S seconds (default 10)")
-    p.add_argument("--loop", action="store_true", help="replay: start over after the last file")
-    p.add_argument("--buffers", type=int, default=16, help="Aravis buffer pool size (default 16)")
-    p.add_argument("--packet-size", default="1500",
-                   help="GigE packet size in bytes (default 1500; 8192/9000 with jumbo frames end to end; "
-                        "'auto': Aravis probes the largest size the path carries)")
-    p.add_argument("--socket-buffer", type=int, metavar="BYTES",
-                   help="GigE receive socket buffer (default: Aravis' automatic size)")
+    for flag in camera_flags():  # each backend's own (polcam.camera.registry)
+        p.add_argument(flag.flag, help=flag.help, **flag.argparse)
 
 
 #: Destinations of the camera settings :func:`add_camera_arguments` adds, with their flags.
@@ -194,24 +191,19 @@ CAMERA_SETTINGS: dict[str, str] = {
 
 
 def camera_options(args: argparse.Namespace) -> dict[str, Any]:
-    """Keyword arguments of :func:`polcam.camera.open_camera` from the parsed camera options.
+    """Keyword arguments of :func:`polcam.camera.open_camera` from the parsed camera options: the
+    values of the flags the ``--device`` string's backend declares, and the settings it takes when
+    opened (:class:`polcam.camera.registry.Backend`).
 
     Raises
     ------
     CameraSettingError
-        A ``--packet-size`` that is neither a number nor ``auto``.
+        A value the backend refuses (a ``--packet-size`` that is neither a number nor ``auto``).
+    CameraNotFoundError
+        An empty ``--device``, or no backend for it.
     """
-    if str(args.device).startswith("replay:"):
-        return {"frame_rate": args.frame_rate, "loop": args.loop}
-    opts: dict[str, Any] = {"n_buffers": args.buffers}
-    if args.packet_size is not None:
-        size = str(args.packet_size).strip().lower()
-        if size != "auto" and not size.isdigit():
-            raise CameraSettingError(f"--packet-size {args.packet_size!r}: expected a number of bytes or 'auto'")
-        opts["packet_size"] = "auto" if size == "auto" else int(size)
-    if args.socket_buffer is not None:
-        opts["socket_buffer_bytes"] = args.socket_buffer
-    return opts
+    backend, _ = backend_for(args.device)
+    return backend.options(vars(args))
 
 
 def configure_camera(camera: Camera, args: argparse.Namespace, *, quiet: bool = False) -> dict[str, Any]:
@@ -228,7 +220,7 @@ def configure_camera(camera: Camera, args: argparse.Namespace, *, quiet: bool = 
     settings = camera.configure(
         pixel_format=args.pixel_format, layout=args.layout, exposure_us=args.exposure,
         gain_db=args.gain, roi=tuple(args.roi) if args.roi else None,
-        frame_rate=args.frame_rate if not str(args.device).startswith("replay:") else None,
+        frame_rate=None if "frame_rate" in backend_for(args.device)[0].open_settings else args.frame_rate,
         trigger=args.trigger, reverse_x=args.reverse_x, reverse_y=args.reverse_y,
     )
     if settings.get("ignored") and not quiet:

@@ -105,11 +105,13 @@ FORMS: tuple[str, ...] = ("stack", "mono-stack", "image")
 #: listed follow).  Defaults: the method ``separate`` runs when none is named, per input form;
 #: for stacks the one the default-method rule picks (docs/benchmarks.md, "Default method rule";
 #: polcam.bench.default_rule) from the recorded table tests/separation/default_rule_table.json.
+#: Plugins: the modules of other distributions' ``polcam.separation`` entry points.
 REGISTRY: Registry[MethodSpec] = Registry(
     "separation method",
     order=("polarized-residual", "tensor", "tensor-tau", "tensor-plain", "imin", "wen21", "tan05", "yoon06",
            "shen08", "shen09", "yang10", "shen13", "akashi16", "yamamoto19"),
     defaults={"stack": "wen21", "mono-stack": "imin", "image": "yang10"},
+    plugins="polcam.separation",
 )
 
 

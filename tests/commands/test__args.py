@@ -54,3 +54,40 @@ def test_output_into_a_closed_pipe_ends_quietly():
     err = proc.stderr.read().decode()
     proc.stderr.close()
     assert proc.wait(60) == 141 and "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+def test_each_backend_gets_the_flags_it_declares():
+    """A backend registered with its own flag: the commands add the flag, and a --device string
+    selecting that backend hands it that flag's value and no other backend's."""
+    from polcam.camera.base import CameraSettingError
+    from polcam.camera.registry import CameraFlag, register_backend, unregister_backend
+    from polcam.commands._args import add_camera_arguments, camera_options
+
+    opened = {}
+
+    def factory(rest, **options):
+        opened.update(rest=rest, **options)
+        return "camera"
+
+    register_backend("probe:", factory, flags=(CameraFlag("--probe-level", "level", "probe: a level",
+                                                           {"type": int, "metavar": "N"}),),
+                      open_settings=("frame_rate",))
+    try:
+        parser = argparse.ArgumentParser()
+        add_camera_arguments(parser)
+        args = parser.parse_args(["--probe-level", "3", "--frame-rate", "5", "--socket-buffer", "4096"])
+        args.device = "probe:x"
+        assert camera_options(args) == {"level": 3, "frame_rate": 5.0}
+        args.device = "replay:/nowhere"
+        assert camera_options(args) == {"loop": False, "frame_rate": 5.0}
+        args.device = "Fake_1"                                  # the default backend: Aravis
+        assert camera_options(args) == {"n_buffers": 16, "packet_size": 1500, "socket_buffer_bytes": 4096}
+        args.packet_size = "jumbo"
+        with pytest.raises(CameraSettingError, match="--packet-size 'jumbo'"):
+            camera_options(args)
+    finally:
+        unregister_backend("probe:")
+    parser = argparse.ArgumentParser()
+    add_camera_arguments(parser)
+    with pytest.raises(SystemExit):                            # the flag went with its backend
+        parser.parse_args(["--probe-level", "3"])
