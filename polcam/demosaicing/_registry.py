@@ -3,9 +3,9 @@
 A method module registers ``fn(mosaic (H, W) float32, layout) -> stack`` with
 :func:`register`; :func:`resolve_demosaic` turns a method name (or None, the
 default for a layout) and a layout into a checked :class:`ResolvedDemosaic`, and
-:func:`demosaic` checks the input once (size, dtype, values) and calls it.  :func:`to_float` (raw counts to linear floats) and
-:func:`mosaic_stack` (the forward model: what a sensor of a layout records of a
-full stack) live here too.
+:func:`demosaic` checks the input once (size, dtype, values) and calls it.
+:func:`to_float` (raw counts to linear floats) and :func:`mosaic_stack` (the
+forward model: what a sensor of a layout records of a full stack) live here too.
 """
 
 from __future__ import annotations

@@ -403,7 +403,9 @@ def separate(images: Any, *, method: str | ResolvedSeparation | None = None, **o
 
 
 def _describe(form: str, shape: tuple[int, ...]) -> str:
-    return f"{'a mono stack' if form == 'mono-stack' else 'an image' if form == 'image' else 'a stack'} of shape {shape}"
+    """The input, for messages: ``"a mono stack of shape (4, 5, 5)"``."""
+    what = {"mono-stack": "a mono stack", "image": "an image"}.get(form, "a stack")
+    return f"{what} of shape {shape}"
 
 
 def _run(arr: np.ndarray, resolved: ResolvedSeparation, clipping: dict[str, Any]) -> Separation:
