@@ -33,7 +33,7 @@ not oversubscribed and the results do not depend on the thread count), or a
 Dask distributed cluster (``scheduler="tcp://host:8786"``, the ``dask`` extra).
 Local workers are supervised (:mod:`polcam.workpool`): a worker that dies
 (out-of-memory killer, kill -9) costs only the frame it held, reported failed
-with the reason; the workers die with the run.  docs/reliability.md lists
+with the reason; the workers die with the run.  docs/guide/faults.md lists
 every fault and what the run does.
 """
 

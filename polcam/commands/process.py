@@ -236,7 +236,7 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
                     "status is then 1. Exit 2: refused before any work (output folder locked by another "
                     "run, not writable or full, bad calibration, unreachable scheduler); 130: stopped by "
                     "Ctrl-C (the first lets the frames in progress finish, a second stops now); 143: "
-                    "stopped by SIGTERM. docs/reliability.md lists every fault.")
+                    "stopped by SIGTERM. docs/guide/faults.md lists every fault.")
     pr.add_argument("inputs", nargs="+", type=Path, help="raw frame files or folders")
     pr.add_argument("-o", "--out", type=Path, required=True, help="output folder")
     pr.add_argument("--layout", help="sensor layout; overrides the sidecar (imx250mzr, imx250myr, "
@@ -271,7 +271,7 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     pr.add_argument("--max-memory", metavar="SIZE",
                     help="largest estimated memory of one frame (e.g. 8G; default three quarters of the "
                          "physical memory; 0: no limit): a frame whose declared size needs more is refused "
-                         "unread (docs/reliability.md)")
+                         "unread (docs/guide/faults.md)")
     pr.add_argument("--quiet", action="store_true", help="no progress bar; only errors and failures")
     pr.add_argument("--json", action="store_true", help="machine-readable JSON lines on stdout "
                                                         "(one per frame, then a summary)")
