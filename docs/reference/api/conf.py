@@ -35,6 +35,8 @@ MODULES = [
     "polcam.acquisition",
     "polcam.sinks",
     "polcam.synth",
+    "polcam.mosaic",
+    "polcam.errors",
 ]
 
 _DIRECTIVES = {"function": "autofunction", "class": "autoclass", "exception": "autoexception",
