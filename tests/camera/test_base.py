@@ -52,8 +52,8 @@ class _Source(Camera):
     def close(self):
         self._opened = False
 
-    def configure(self, **settings):
-        return {}
+    def _configure(self, settings):
+        return settings.given()
 
     def _start(self):
         pass
