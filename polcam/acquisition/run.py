@@ -92,6 +92,7 @@ if TYPE_CHECKING:
 
 __all__ = ["ON_WRITE_ERROR", "Capture", "CaptureOptions", "StopRequest", "run_capture", "write_summary"]
 
+
 def _check_calibration(calibration: Calibration, camera: Camera) -> tuple[str | None, str | None]:
     """Refuse a calibration of another layout than the camera sends; (file, SHA-256) to record.
 
