@@ -9,6 +9,12 @@ Threads of a capture::
         live thread --(one-slot mailbox)--> separation thread: the chosen method on the
             newest frame whenever the previous separation is done
 
+Both ends are sinks (:class:`polcam.sinks.base.Sink`): the frame sinks (the
+saver, and any passed as ``sinks``) are logged every frame received, on the
+capture loop's thread; the live sinks (Rerun, ``Capture(live_sink=...)``) the
+live view's maps, layers and statistics, on the live threads.  :class:`Capture`
+closes them all once when it ends, however it ends.
+
 Nothing the capture does blocks acquisition: the camera's own thread only
 ever drops frames into its queue (a full queue drops the frame and counts
 it).  Saving is lossless for every frame the capture loop takes: when the
@@ -81,7 +87,7 @@ from polcam.acquisition.saving import (
     clean_stale,
     existing_frames,
 )
-from polcam.acquisition.summary import write_summary
+from polcam.acquisition.summary import summarize, write_summary
 from polcam.camera.base import Camera, CameraDisconnectedError, CapturedFrame, FrameTimeout
 from polcam.errors import LayoutError, MethodError, PolcamError
 from polcam.frame import Frame
@@ -472,66 +478,9 @@ class Capture:
 
     # ------------------------------------------------------------- summary
     def summary(self) -> dict[str, Any]:
-        """The capture's summary (the keys :func:`run_capture` lists); not written anywhere."""
-        st = self.camera.stats()
-        elapsed = max(self.t_end - self.t_start, 1e-9)
-        live, saver, opts = self.live, self.saver, self.options
-        error = self.error
-        if live is not None and live.error is not None:
-            error = f"live processing failed: {live.error}"
-        return {
-            "camera": self.camera.info,
-            "stop_reason": self.reason,
-            "error": error,
-            "frames_good": st.good,
-            "frames_incomplete": st.incomplete,
-            "frames_dropped": st.dropped,
-            "frames_received": self.received,
-            "frames_saved": len(saver.saved) if saver else 0,
-            "frames_save_failed": len(saver.failed) if saver else 0,
-            "frames_unsaved": saver.unsaved if saver else 0,
-            "frames_left_at_stop": st.left_at_stop,
-            "frames_processed": live.processed if live else 0,
-            "frames_skipped": live.skipped if live else 0,
-            "separation": self.separate,
-            "separation_options": dict(self.separate_options),
-            "separation_illuminant_held": live.held_illuminant if live else None,
-            "separations": live.separations if live else 0,
-            "separations_skipped": live.separations_skipped if live else 0,
-            "separation_seconds_mean": (float(np.mean(live.separation_seconds))
-                                        if live and live.separation_seconds else None),
-            "separation_errors": list(live.separation_errors) if live else [],
-            "separation_abandoned": live.separation_abandoned if live else False,
-            "duration_s": elapsed,
-            "fps": self.received / elapsed,
-            "fps_processed": (live.processed / elapsed) if live else 0.0,
-            # the two live rates over the capture: maps computed (and logged), frames separated
-            "maps_frames": live.processed if live else 0,
-            "maps_fps": (live.processed / elapsed) if live else 0.0,
-            "layers_frames": live.separations if live else 0,
-            "layers_fps": (live.separations / elapsed) if live else 0.0,
-            "live_seconds_per_frame": (live.seconds / live.processed) if live and live.processed else None,
-            "save_seconds_per_frame": (saver.seconds / len(saver.saved)) if saver and saver.saved else None,
-            "by_status": st.by_status,
-            "queue_overflow": st.queue_overflow,
-            "on_write_error": opts.on_write_error,
-            "write_error": saver.write_error if saver else None,
-            # seconds from the first failed write to the end of acquisition
-            "write_error_to_stop_s": (max(0.0, self.t_end - saver.failed_at)
-                                      if saver is not None and saver.failed_at is not None else None),
-            "stream": st.stream,
-            "format": opts.save_format if saver else None,
-            "out": None if self.out is None else str(self.out),
-            "rerun": None if opts.rerun is None else str(opts.rerun),
-            "stale_temporaries_removed": self.stale,
-            "calibration": self.cal_file,
-            "calibration_sha256": self.cal_sha,
-            "calibration_stages": self.calibration.applied_stages if self.calibration is not None else None,
-            "save_errors": saver.failed if saver else [],
-            "files": sorted(saver.saved) if saver else [],
-            "summary_file": None,
-            "summary_error": None,
-        }
+        """The capture's summary (the keys :func:`run_capture` lists, :func:`polcam.acquisition.summary.summarize`);
+        not written anywhere."""
+        return summarize(self)
 
     # ----------------------------------------------------------------- run
     def run(self) -> dict[str, Any]:
