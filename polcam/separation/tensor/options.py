@@ -86,15 +86,15 @@ OPTION_TYPES: dict[str, Any] = {
 #: The paper's stopping tolerance, kept by the exact solver.
 EXACT_TOL = 1e-5
 #: Stopping tolerance of the fast solver: on the ten synthetic scenes at 256 x 256 it kept the
-#: diffuse PSNR within 0.04 dB of the exact solver's (3e-4: 0.015 dB, 1e-3: 0.09 dB; docs/benchmarks.md,
-#: Tensor solver speed).
+#: diffuse PSNR within 0.04 dB of the exact solver's (3e-4: 0.015 dB, 1e-3: 0.09 dB;
+#: docs/decisions/tensor-fast-solver.md).
 FAST_TOL = 5e-4
 #: Images up to this many pixels are one tensor problem (the answer of the exact solver).
 AUTO_UNTILED_PIXELS = 256 * 256
 #: Largest tile (height, width) used above that size; each side is shrunk to the smallest that
 #: needs no more tiles (:func:`fit_side`).  Narrow tiles make the Gram side of a slice small
 #: (3 x 32 = 96 columns: eigenproblems of 96 instead of 192 for 64 x 64 tiles) at the same
-#: quality (docs/benchmarks.md, Tensor solver speed).
+#: quality (docs/decisions/tensor-fast-solver.md).
 AUTO_TILE = (96, 32)
 #: Tiles per IALM call of the PyTorch backend on a CPU (on a GPU: as many as fit in a third of
 #: its free memory).
