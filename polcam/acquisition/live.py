@@ -166,8 +166,8 @@ class LiveProcessor:
         first separated frame and pass that estimate to every later one (:attr:`held_illuminant`).
         A scene's light does not change from frame to frame, but its estimate does with the noise:
         re-estimated each frame it flipped between two decisions on one of six noisy frames of a
-        static synthetic scene, and the whole diffuse layer with it (docs/algorithm.md,
-        "Frame-to-frame stability").  ``False``: estimate on every frame.
+        static synthetic scene, and the whole diffuse layer with it (docs/methods/polarized-residual.md,
+        "Stability").  ``False``: estimate on every frame.
     counters
         Shared frame rate / dropped / incomplete numbers to plot.
     workers

@@ -36,7 +36,7 @@ __all__ = [
     "default_lam",
 ]
 
-#: Defaults of the tensor methods, with where each comes from (docs/algorithm.md).
+#: Defaults of the tensor methods, with where each comes from (docs/methods/tensor.md).
 DEFAULTS: dict[str, Any] = {
     "n4": 4,            # representations per pixel (open in the paper; third-party 4)
     "block": 3,         # block side for candidate pixels (open; third-party 3x3)
@@ -54,12 +54,12 @@ DEFAULTS: dict[str, Any] = {
     "max_iter": 200,
     "init": "yang10",   # initial diffuse of every representation (paper: Yang'10)
     "illuminant": "polarization",  # "polarization", "white" or an RGB triple
-    "solver": "fast",   # "fast" or "exact" (the reference; docs/algorithm.md, Fast solver)
+    "solver": "fast",   # "fast" or "exact" (the reference; docs/methods/tensor.md, Fast solver)
     "tile": None,       # None: exact solver one tile; fast: one tile up to AUTO_UNTILED_PIXELS
                         # pixels, tiles of at most AUTO_TILE (height, width) above; an int
                         # (square) or a (height, width) pair asks for tiles of that size
     "overlap": 6,       # least overlap of neighbouring tiles (pixels), blended linearly; 2 left
-                        # visible seams on real stacks (docs/algorithm.md, Fast solver, item 7)
+                        # visible seams on real stacks (docs/methods/tensor.md, Tiling)
     "workers": None,    # threads for the initial diffuse, the tiles and the slices;
                         # None: polcam.parallel.default_workers() (the CPU count, at most 8)
     "device": None,     # None: numpy; "cpu", "cuda", ...: the PyTorch backend (torch extra)
