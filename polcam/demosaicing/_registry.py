@@ -47,7 +47,7 @@ class MethodSpec:
     mono, color
         Whether the method accepts mono / colour layouts.
     reference
-        Citation of the published method it follows (docs/demosaic.md has the
+        Citation of the published method it follows (docs/methods/demosaic-<name>.md has the
         details and the departures).
     """
 
@@ -65,7 +65,7 @@ _METHODS: dict[str, MethodSpec] = {}
 _ORDER = ("bilinear", "eari", "lmmse")
 
 #: The method :func:`demosaic` runs when none is named, per kind of layout: the best
-#: polcam has (docs/demosaic.md says why; docs/benchmarks.md has the figures); process,
+#: polcam has (docs/decisions/default-demosaicing.md says why; docs/benchmarks.md has the figures); process,
 #: capture and the demo use the same.  Colour: ``lmmse``, the best method on the real
 #: stacks on every metric and within the 1 s budget per 2448 x 2048 frame (the
 #: validation set ranks the slower ``lmmse-eari`` blend first).
