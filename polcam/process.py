@@ -33,7 +33,7 @@ not oversubscribed and the results do not depend on the thread count), or a
 Dask distributed cluster (``scheduler="tcp://host:8786"``, the ``dask`` extra).
 Local workers are supervised (:mod:`polcam.workpool`): a worker that dies
 (out-of-memory killer, kill -9) costs only the frame it held, reported failed
-with the reason; the workers die with the run.  docs/reliability.md lists
+with the reason; the workers die with the run.  docs/guide/faults.md lists
 every fault and what the run does.
 """
 
@@ -56,6 +56,7 @@ import numpy as np
 from polcam import __version__
 from polcam._hashing import sha256_file
 from polcam.errors import PolcamError
+from polcam.sinks.base import FanOut, Record, Sink
 from polcam.sinks.files import FORMATS
 from polcam.outdir import summarize, write_summary
 from polcam.process_checks import check_run, layout_hint, separation_for
@@ -146,10 +147,6 @@ def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False,
         else:
             problems.append({"input": str(root), "error": "no such file or folder"})
     return [jobs[k] for k in sorted(jobs)], problems
-
-
-def _file_record(path: Path) -> dict[str, Any]:
-    return {"bytes": path.stat().st_size, "sha256": sha256_file(path)}
 
 
 def _is_done(job: FrameJob, opts: ProcessOptions, fingerprint: str) -> bool:
@@ -335,7 +332,8 @@ def _unmark_finished(target: Path) -> None:
 def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, sep: ResolvedSeparation, dem: ResolvedDemosaic,
              parts: dict[str, Any], fingerprint: str, t0: float) -> dict[str, Any]:
     from polcam.pipeline import run_frame
-    from polcam.sinks.files import write_meta, write_products
+    from polcam.sinks.base import Record
+    from polcam.sinks.files import ProductFiles
 
     calibration = _calibration(opts.calibration, parts["calibration_sha256"]) if opts.calibration else None
     read_seconds = time.perf_counter() - t0
@@ -344,23 +342,17 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, sep: ResolvedSepar
     frame = result.frame
     timings: dict[str, float] = {"read": read_seconds + result.timings["calibrate"],
                                  **{k: v for k, v in result.timings.items() if k != "calibrate"}}
-    t = time.perf_counter()
     source = os.path.abspath(job.input)  # meta.json names the raw frame from wherever it is read
     file_meta = {"input": source, "method": parts["method"], "layout": str(frame.layout),
                  "fingerprint": fingerprint, "polcam_version": __version__}
-    _exit_if_orphaned()
-    names = write_products(job.target, {name: result.products[name] for name in OUTPUTS}, fmt=opts.format,
-                           unit=_UNIT, metadata=file_meta)
-    files = {n: _file_record(Path(job.target) / n) for n in names}
-    timings["write"] = time.perf_counter() - t
     assert result.separation is not None
     info = {k: v for k, v in result.separation.info.items() if k not in ("residuals",)}
     meta = {
         "input": source,
         "input_sha256": parts["input_sha256"],
         "name": job.name,
-        "outputs": names,
-        "files": files,
+        "outputs": [],                   # the file sink sets outputs, files and timings["write"]
+        "files": {},
         "resolution": opts.resolution,
         "layout": str(frame.layout),
         "frame": _jsonable({k: v for k, v in frame.metadata.items() if k != "path"}),
@@ -380,8 +372,9 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, sep: ResolvedSepar
         "fingerprint_parts": parts,
         "fingerprint": fingerprint,
     }
-    _exit_if_orphaned()
-    write_meta(job.target, meta)
+    products = {name: result.products[name] for name in OUTPUTS}
+    files = ProductFiles(fmt=opts.format, unit=_UNIT, metadata=file_meta, guard=_exit_if_orphaned)
+    files.log(0, Record(frame=frame, products=products, folder=Path(job.target), name=job.name, meta=meta))
     return meta
 
 
@@ -407,36 +400,13 @@ def _calibration(path: str, digest: str) -> Any:
     return _CALIBRATIONS[key]
 
 
-class RunRecording:  # RERUN SINK (process --rerun): to become the shared polcam.sinks.rerun sink
-    """A run as a Rerun recording (``--rerun FILE.rrd``): one time step per frame.
-
-    Logged through :class:`polcam.sinks.rerun.RerunSink` (the entity paths and
-    encodings live capture uses): for each finished frame its outputs read
-    back from disk (``/polarization/*``, ``/layers/*``) and its raw frame
-    (``/camera/raw``) on the ``frame`` sequence timeline, the frame's position
-    in the sorted input list.
-    """
-
-    def __init__(self, path: Path, names: Sequence[str]) -> None:
-        from polcam.sinks.rerun import RerunSink
-
-        self._index = {n: i for i, n in enumerate(names)}
-        self._sink = RerunSink(path, raw_every=1, view_scale=1.0, live=False)
-
-    def log_frame(self, folder: Path, ext: str, name: str) -> None:
-        """Log the outputs of one finished frame (``ext``: kept for callers; any format is read)."""
-        self._sink.log_output(self._index.get(name, len(self._index)), folder)
-
-    def close(self) -> None:
-        """Flush the recording to disk."""
-        self._sink.close()
 
 
 def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         scheduler: str | None = None, force: bool = False,
         on_result: Callable[[dict[str, Any]], None] | None = None,
         stop: Callable[[], bool] | None = None, abort: Callable[[], Any] | None = None,
-        scheduler_timeout: float = 10.0,
+        scheduler_timeout: float = 10.0, sinks: Sequence[Sink] = (),
         separations: Mapping[str, ResolvedSeparation] | None = None) -> list[dict[str, Any]]:
     """Process ``jobs``; results in completion order.
 
@@ -467,6 +437,13 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         that frame cancelled to ``on_result`` and propagates.
     scheduler_timeout
         Seconds to wait for a Dask scheduler given by address.
+    sinks
+        Each finished frame (status "done" or "skipped") is logged to these
+        (:class:`polcam.sinks.base.Sink`, e.g.
+        :class:`polcam.sinks.recording.RecordingSink`) as a
+        :class:`polcam.sinks.base.Record` with its ``folder`` and ``name``, at
+        its index in ``jobs``, in completion order, after ``on_result``.  They are closed when the run ends, however
+        it ends.
     separations
         The run's separation per input form, from :func:`check_run`; None: resolved here (a
         method or options :func:`check_run` refuses then fail each frame, with the reason).
@@ -484,12 +461,26 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         The Dask scheduler cannot be reached within ``scheduler_timeout``.
     """
     results: list[dict[str, Any]] = []
+    fan = FanOut(sinks)
+    where = {job.name: (i, Path(job.target)) for i, job in enumerate(jobs)}
 
     def done(r: dict[str, Any]) -> None:
         results.append(r)
         if on_result:
             on_result(r)
+        if fan.sinks and r["status"] in ("done", "skipped"):
+            index, folder = where[r["name"]]
+            fan.log(index, Record(folder=folder, name=r["name"]))
 
+    with fan:
+        _run(jobs, opts, workers, scheduler, force, done, stop, abort, scheduler_timeout, separations)
+    return results
+
+
+def _run(jobs: Sequence[FrameJob], opts: ProcessOptions, workers: int, scheduler: Any, force: bool,
+         done: Callable[[dict[str, Any]], None], stop: Callable[[], bool] | None,
+         abort: Callable[[], Any] | None, scheduler_timeout: float,
+         separations: Mapping[str, ResolvedSeparation] | None) -> None:
     stop = stop or (lambda: False)
     abort = abort or (lambda: False)
     seps = dict(separations) if separations is not None else _separations(opts, jobs)
@@ -521,7 +512,6 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
                  on_result=lambda job, r: done(r), on_lost=lost, stop=stop, abort=abort,
                  on_cancel=lambda job: done(_cancelled(job, _stopped(abort))),
                  preload=("polcam.process",))
-    return results
 
 
 def _separations(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, ResolvedSeparation]:

@@ -155,7 +155,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                           description="Per synthetic scene and method: the largest change of the diffuse layer "
                                       "under a perturbation of the input far below any noise (continuity), and "
                                       "the per-pixel deviation of the layer over noise seeds of a static scene "
-                                      "(flicker), with the mean PSNR (docs/algorithm.md, polarized-residual).")
+                                      "(flicker), with the mean PSNR (docs/methods/polarized-residual.md).")
     _stability.add_arguments(bst)
     b.set_defaults(func=cmd_bench)
     return b

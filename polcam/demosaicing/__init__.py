@@ -11,7 +11,7 @@ Every module in this package whose name does not start with an underscore is a
 method module (except :mod:`~polcam.demosaicing.training` and
 :mod:`~polcam.demosaicing.validation`, the ``lmmse`` training and model
 selection); importing the package imports them all, and each registers itself with
-:func:`register`.  docs/demosaic.md describes the methods.
+:func:`register`.  docs/methods/demosaicing.md describes the methods.
 """
 
 from __future__ import annotations

@@ -49,7 +49,7 @@ class MethodSpec:
     mono, color
         Whether the method accepts mono / colour layouts.
     reference
-        Citation of the published method it follows (docs/demosaic.md has the
+        Citation of the published method it follows (docs/methods/demosaic-<name>.md has the
         details and the departures).
     """
 
@@ -63,10 +63,10 @@ class MethodSpec:
 
 #: Every registered demosaicing method.  Listing order: ``order`` first (registered methods
 #: not listed follow, sorted).  Defaults: the method :func:`demosaic` runs when none is named,
-#: per kind of layout: the best polcam has (docs/demosaic.md says why; docs/benchmarks.md has
-#: the figures); process, capture and the demo use the same.  Colour: ``lmmse``, the best
-#: method on the real stacks on every metric and within the 1 s budget per 2448 x 2048 frame
-#: (the validation set ranks the slower ``lmmse-eari`` blend first).
+#: per kind of layout: the best polcam has (docs/decisions/default-demosaicing.md says why;
+#: docs/benchmarks.md has the figures); process, capture and the demo use the same.  Colour:
+#: ``lmmse``, the best method on the real stacks on every metric and within the 1 s budget per
+#: 2448 x 2048 frame (the validation set ranks the slower ``lmmse-eari`` blend first).
 REGISTRY: Registry[MethodSpec] = Registry("demosaicing method", order=("bilinear", "eari", "lmmse"),
                                           defaults={"color": "lmmse", "mono": "eari"})
 
@@ -248,6 +248,21 @@ def demosaic(
         this kind of layout (mono/colour).
     FrameReadError
         A raw array that is not a finite 2-D integer or float array.
+
+    Examples
+    --------
+    Uniform light on an 8 x 8 ``imx250mzr`` mosaic (cell ``90 45 / 135 0``):
+
+    >>> import numpy as np
+    >>> import polcam
+    >>> raw = np.tile([[0.1, 0.3], [0.5, 0.7]], (4, 4))
+    >>> stack = polcam.demosaic(raw, layout="imx250mzr")
+    >>> stack.shape, stack.dtype
+    ((4, 8, 8), dtype('float32'))
+    >>> stack[:, 4, 4]  # I0, I45, I90, I135 of one pixel
+    array([0.7, 0.3, 0.1, 0.5], dtype=float32)
+    >>> polcam.demosaic(raw, layout="imx250mzr", resolution="cell").shape
+    (4, 4, 4)
     """
     if isinstance(method, ResolvedDemosaic):
         resolved = method

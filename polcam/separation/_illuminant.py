@@ -11,7 +11,7 @@ polarizer of efficiency ``eta_c`` (the diattenuation, 1 for an ideal one)
 measures ``eta_c Isv_c``.  Real wire-grid polarizers (on-chip ones too) have a
 wavelength-dependent efficiency, and on the real stacks polcam is tested on the
 polarized light's colour differs from the neutral colour of the white surfaces
-and of the brightest highlights (docs/algorithm.md, polarized-residual).
+and of the brightest highlights (docs/methods/polarized-residual.md).
 
 :func:`estimate_illuminant` therefore:
 

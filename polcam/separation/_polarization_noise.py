@@ -1,6 +1,6 @@
 """Noise of a polarization stack's Stokes components, and the garrotes that shrink what noise explains.
 
-Used by ``polarized-residual`` (docs/algorithm.md, polarized-residual, steps 2 and 6): the
+Used by ``polarized-residual`` (docs/methods/polarized-residual.md, steps 2 and 6): the
 deviation of q and u per pixel measured from the stack itself (:func:`_stokes_noise`), the
 polarized amplitude's noise bias removed (:func:`_debias`), and the colour prior's removal
 shrunk by the noise of Ic (:func:`_prior_removal`).
@@ -161,7 +161,7 @@ def _axis_debias(q: Any, u: Any, c2: Any, s2: Any, smoothed: Any,
     for a coherent polarization, is debiased as one component.  Elsewhere the amplitude
     ``hypot(q, u)`` is debiased as before (:func:`_debias`).  The two are blended over one
     deviation, from ``_COHERENT_KSIG - 0.5`` to ``_COHERENT_KSIG + 0.5``: a hard switch made
-    ``Imin`` jump by up to 0.02 under a change of 1e-7 in the input (docs/algorithm.md, ninth
+    ``Imin`` jump by up to 0.02 under a change of 1e-7 in the input (docs/methods/polarized-residual.md, ninth
     round).  Returns (H, W, C) float32 >= 0.
     """
     xp = namespace(q)

@@ -1,10 +1,10 @@
 """``polarized-residual``'s optional steps for the unpolarized specular light (``unpolarized="measured"``).
 
-Steps 2-6 of docs/algorithm.md, polarized-residual ("The unpolarized specular residual"): the
+Steps 2-6 of docs/methods/polarized-residual.md ("The unpolarized specular residual"): the
 polarized specular light as one multiple of the illuminant's colour, its coherent gate, the ratio
 ``k`` of unpolarized to polarized specular light measured on coloured highlights, and Shen &
 Zheng's colour prior on the residual.  They are off by default: on the randomized family's
-validation split each of them lowers the mean object PSNR (docs/algorithm.md gives the figures).
+validation split each of them lowers the mean object PSNR (docs/methods/polarized-residual.md gives the figures).
 The coherent gate (:func:`coherent_gate`) is used by every path.
 """
 

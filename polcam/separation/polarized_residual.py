@@ -1,6 +1,6 @@
 """``polarized-residual``: polcam's own separation: remove the specular light that polarization shows.
 
-The physics (docs/algorithm.md, polarized-residual, gives the equations and the
+The physics (docs/methods/polarized-residual.md gives the equations and the
 validation sweeps behind every choice):
 
 * Specular reflection has the illuminant's colour ``G`` and is partly polarized,
@@ -29,7 +29,7 @@ validation sweeps behind every choice):
 
 One implementation for numpy and PyTorch: the array code runs over :mod:`polcam._xp`, the
 neighbourhood filters are :mod:`polcam._imageops` (OpenCV for numpy, the same kernels on a torch
-device); a ``torch.Tensor`` stack, or ``device=``, runs it on PyTorch (docs/algorithm.md,
+device); a ``torch.Tensor`` stack, or ``device=``, runs it on PyTorch (docs/methods/polarized-residual.md,
 "Backends").
 """
 
@@ -59,7 +59,7 @@ REFERENCE = (
     "IEEE TIP 30 2021; G. A. Atkinson & E. R. Hancock, IEEE TIP 15(6) 2006; Kajiyama et al., WACV 2023"
 )
 
-#: Default options (docs/algorithm.md gives the benchmark behind each).
+#: Default options (docs/methods/polarized-residual.md gives the benchmark behind each).
 DEFAULTS: dict[str, Any] = {
     "illuminant": None,          # None: estimate; or an RGB triple
     "efficiency": None,          # per-colour polarizer efficiency from a calibration, (3,) in (0, 1]
@@ -88,7 +88,7 @@ DEFAULTS: dict[str, Any] = {
 
 #: Share of a clipped region's border light that the layer must remove for the region to be a highlight
 #: (filled): a sweep on the randomized family's validation split (0.02 / 0.03: 29.34 dB, 0.05 / 0.07:
-#: 29.18, the fill of one scene lost; docs/algorithm.md, polarized-residual).
+#: 29.18, the fill of one scene lost; docs/methods/polarized-residual.md).
 _HIGHLIGHT_BORDER = 0.03
 
 
@@ -359,7 +359,7 @@ def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) 
     Without colour, k (the unpolarized / polarized ratio of the specular light) is chosen so that the
     diffuse layer ``Imin - k a`` carries as little of the highlights' spatial profile as possible:
     least squares of the gradients, ``k = <grad Imin, grad a> / <grad a, grad a>`` over the
-    neighbourhood (docs/algorithm.md), clipped to [0, max_ratio].  ``stack`` is (4, H, W) float32,
+    neighbourhood (docs/methods/polarized-residual.md), clipped to [0, max_ratio].  ``stack`` is (4, H, W) float32,
     numpy or torch.
     """
     xp = namespace(stack)

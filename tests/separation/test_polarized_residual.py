@@ -615,7 +615,7 @@ def test_a_tiny_change_of_the_input_gives_a_tiny_change_of_the_layer():
 
 def test_torch_path_copies_to_the_host_only_where_documented(torch_cases, monkeypatch):
     # on a GPU an implicit numpy conversion of a tensor fails, and a hidden copy costs time: make
-    # every implicit one raise, and record who asks for the explicit ones (docs/algorithm.md,
+    # every implicit one raise, and record who asks for the explicit ones (docs/methods/polarized-residual.md,
     # "Backends": the noise estimate's bins, the white test's block sums, the highlights' colour
     # sum, and the clipped fill)
     import inspect

@@ -59,7 +59,7 @@ def ialm(D: Any, *, tau: Any, lam: float | np.ndarray, gamma: float,
     ``E = D - S + P`` and constants ``c1 = 1 / (1 + 2 gamma)``,
     ``c2 = 2 gamma / (1 + 2 gamma)``; ``S = V - C`` and ``P_new = C mu / mu_new``
     with ``V = D - L + P``, ``C = clip(V, +-lam tau / mu)``; the residual is
-    ``C - P`` and the next ``E = L + (C - P) + P_new`` (docs/algorithm.md).
+    ``C - P`` and the next ``E = L + (C - P) + P_new`` (docs/methods/tensor.md).
 
     Each problem of a batch has its own mu0, threshold, residual and stopping
     iteration; a problem that stops leaves the batch.
