@@ -39,17 +39,30 @@ values.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from scipy import ndimage
 
+from polcam.calibration._series import (
+    _LOCAL,
+    Frames,
+    _check_saturation,
+    _class_mean,
+    _class_name,
+    _local_outliers,
+    _mosaic_correction,
+    _read_frames,
+    _result,
+    _stage_info,
+    _Stats,
+    class_index,
+    robust_sigma,
+)
 from polcam.calibration.model import model_from_coefficients, nominal_orientation
-from polcam.calibration.store import Calibration, CalibrationError, _now
-from polcam.frame import Frame
-from polcam.mosaic import ANGLES, Layout, parse_layout
+from polcam.calibration.store import Calibration, CalibrationError
+from polcam.mosaic import ANGLES, Layout
 
 __all__ = [
     "DARK_MAX_LEVEL",
@@ -70,10 +83,6 @@ MAX_ANGLE_GAP_DEG = 45.0
 #: Largest |median(theta - nominal)| of an angle class before the angles are deemed mislabelled.
 MAX_CLASS_OFFSET_DEG = 20.0
 
-FrameLike = Frame | np.ndarray
-Frames = Iterable[FrameLike] | np.ndarray
-
-_MAD_TO_SIGMA = 1.482602218505602
 # Floors of the robust spread in the polarizer outlier test: deviations smaller than
 # outlier_sigma times these are never outliers, whatever the spread of a very uniform
 # (or skewed, like D from extinction ratios) class: gain 1 %, D 0.01, orientation
@@ -81,152 +90,24 @@ _MAD_TO_SIGMA = 1.482602218505602
 _FLOOR_GAIN = 0.01
 _FLOOR_D = 0.01
 _FLOOR_THETA = 0.5
-_LOCAL = 7  # window of the local medians, pixels
-
-
-def robust_sigma(x: np.ndarray) -> float:
-    """Standard deviation estimated as 1.4826 times the median absolute deviation (NaN-free input)."""
-    x = np.asarray(x, dtype=np.float64).ravel()
-    if x.size == 0:
-        return 0.0
-    return float(_MAD_TO_SIGMA * np.median(np.abs(x - np.median(x))))
-
-
-def class_index(layout: Layout, height: int, width: int, *, angle: bool = True) -> np.ndarray:
-    """Class of every pixel: ``angle_index + 4 channel`` (``angle=False``: colour channel only).
-
-    Returns
-    -------
-    numpy.ndarray
-        (height, width) int array; values in 0..11 (colour), 0..3 (mono), or 0..2
-        / 0 without the angle.
-    """
-    ch = layout.channel_index(height, width)
-    if not angle:
-        return ch
-    return layout.angle_index(height, width) + 4 * ch
-
-
-def _class_mean(values: np.ndarray, classes: np.ndarray, good: np.ndarray) -> np.ndarray:
-    """Per-pixel mean of ``values`` over the good pixels of its class (1 where a class has none)."""
-    n = int(classes.max()) + 1
-    sums = np.bincount(classes[good], weights=values[good], minlength=n)
-    counts = np.bincount(classes[good], minlength=n)
-    means = np.where(counts > 0, sums / np.maximum(counts, 1), 1.0)
-    return means[classes]
+_FLOOR_RESIDUAL = 0.1
+#: Least median signal of the polarizer frames, as a share of the range above the dark level: below it
+#: the fit's precision (shot and read noise over the signal) is too poor to calibrate.
+_MIN_SIGNAL = 0.02
+#: Least median diattenuation of the fitted pixels: a polarization sensor's micro-polarizers have D near 1
+#: (extinction ratios of tens to hundreds); under this the light was barely polarized (no polarizer in the
+#: beam, or a wrong source_dolp).
+_MIN_MEDIAN_D = 0.5
 
 
 # ---------------------------------------------------------------------------
-# frames
+# dark
 # ---------------------------------------------------------------------------
 
-@dataclass
-class _Stats:
-    """What a stage learnt about its frames while reading them."""
-
-    layout: Layout
-    shape: tuple[int, int]
-    bit_depth: int
-    black_level: float
-    white_level: float
-    camera_id: str | None = None
-    exposure_us: float | None = None
-    gain_db: float | None = None
-    roi: list[int] | None = None
-    reverse_x: bool | None = None
-    reverse_y: bool | None = None
-    count: int = 0
-    saturated: int = 0
-    names: list[str] = field(default_factory=list)
-
-
-def _as_frames(frames: Frames) -> Iterator[FrameLike]:
-    if isinstance(frames, np.ndarray):
-        if frames.ndim == 2:
-            yield frames
-            return
-        if frames.ndim != 3:
-            raise CalibrationError(f"frames array of shape {frames.shape}: expected (N, H, W) counts")
-        yield from frames
-        return
-    if isinstance(frames, Frame):
-        yield frames
-        return
-    yield from frames
-
-
-def _frame_name(frame: FrameLike, i: int) -> str:
-    if isinstance(frame, Frame) and frame.metadata.get("path"):
-        return str(frame.metadata["path"])
-    return f"frame {i}"
-
-
-def _read_frames(frames: Frames, *, layout: str | Layout | None, base: Calibration | None,
-                 what: str, check_settings: bool) -> Iterator[tuple[int, np.ndarray, Frame, _Stats]]:
-    """Yield ``(i, counts float64, frame, stats)`` after checking each frame against the first."""
-    lay = None if layout is None else parse_layout(layout)
-    stats: _Stats | None = None
-    for i, item in enumerate(_as_frames(frames)):
-        name = _frame_name(item, i)
-        if isinstance(item, Frame):
-            frame = item
-        else:
-            arr = np.asarray(item)
-            if arr.ndim != 2 or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
-                raise CalibrationError(f"{name}: array of shape {arr.shape} and dtype {arr.dtype}: "
-                                       "expected a 2-D mosaic of counts")
-            depth = base.bit_depth if base is not None else (8 if arr.dtype == np.uint8 else 16)
-            black = base.black_level if base is not None and base.black_level is not None else 0.0
-            white = base.white_level if base is not None and base.white_level is not None else None
-            frame = Frame(arr, layout=lay, bit_depth=depth, black_level=black, white_level=white)
-        counts = np.asarray(frame.mosaic, dtype=np.float64)
-        if counts.ndim != 2:
-            raise CalibrationError(f"{name}: mosaic of shape {counts.shape}: expected (H, W)")
-        if not np.all(np.isfinite(counts)):
-            raise CalibrationError(f"{name}: mosaic holds NaN or infinite values")
-        flay = lay or frame.layout or (base.layout if base is not None else None)
-        if flay is None:
-            raise CalibrationError(f"{name}: no layout: give layout= (--layout), e.g. imx250mzr or imx250myr")
-        if lay is not None and frame.layout is not None and frame.layout != lay:
-            # an explicit layout overrides what the file said, as everywhere in polcam
-            frame = Frame(frame.mosaic, layout=lay, bit_depth=frame.bit_depth, black_level=frame.black_level,
-                          white_level=frame.white_level, metadata=frame.metadata)
-        elif frame.layout is None:
-            frame = Frame(frame.mosaic, layout=flay, bit_depth=frame.bit_depth, black_level=frame.black_level,
-                          white_level=frame.white_level, metadata=frame.metadata)
-        h, w = counts.shape
-        if h % 2 or w % 2 or h < 2 * flay.period or w < 2 * flay.period:
-            raise CalibrationError(f"{name}: mosaic of {w}x{h} pixels: expected even dimensions of at "
-                                   f"least {2 * flay.period} for layout {flay}")
-        meta = frame.metadata
-        if stats is None:
-            stats = _Stats(layout=flay, shape=(h, w), bit_depth=int(frame.bit_depth),
-                           black_level=float(frame.black_level), white_level=float(frame.white_level),
-                           camera_id=None if meta.get("camera_id") is None else str(meta["camera_id"]),
-                           exposure_us=_num(meta.get("exposure_us")), gain_db=_num(meta.get("gain_db")),
-                           roi=None if meta.get("roi") is None else [int(v) for v in meta["roi"]],
-                           reverse_x=meta.get("reverse_x"), reverse_y=meta.get("reverse_y"))
-            if base is not None:
-                base.check_frame(frame, check_settings=check_settings)
-        else:
-            _same(name, "size", f"{w}x{h}", f"{stats.shape[1]}x{stats.shape[0]}", (h, w) == stats.shape)
-            _same(name, "layout", flay, stats.layout, flay == stats.layout)
-            _same(name, "bit_depth", frame.bit_depth, stats.bit_depth, int(frame.bit_depth) == stats.bit_depth)
-            cam = meta.get("camera_id")
-            _same(name, "camera_id", cam, stats.camera_id,
-                  cam is None or stats.camera_id is None or str(cam) == stats.camera_id)
-            exp = _num(meta.get("exposure_us"))
-            _same(name, "exposure_us", exp, stats.exposure_us,
-                  exp is None or stats.exposure_us is None or math.isclose(exp, stats.exposure_us, rel_tol=1e-3))
-            gain = _num(meta.get("gain_db"))
-            _same(name, "gain_db", gain, stats.gain_db,
-                  gain is None or stats.gain_db is None or abs(gain - stats.gain_db) <= 1e-3)
-        stats.count += 1
-        stats.names.append(name)
-        stats.saturated += int(np.count_nonzero(counts >= stats.white_level))
-        yield i, counts, frame, stats
-    if stats is None:
-        raise CalibrationError(f"no frames given for the {what} calibration")
+#: Largest mean level of a dark frame above its black level, as a share of the range (white level
+#: minus black level): a capped sensor reads its black level, dark current and read noise; more
+#: than this is light (a lit scene, a lens not capped) or a black level the frame does not declare.
+DARK_MAX_LEVEL = 0.05
 
 
 def _check_dark(counts: np.ndarray, stats: _Stats) -> None:
@@ -239,80 +120,6 @@ def _check_dark(counts: np.ndarray, stats: _Stats) -> None:
             f"{stats.names[-1]}: not a dark frame: mean level {mean:.4g} counts, {above:.1%} of the range above "
             f"the black level {stats.black_level:.4g}; expected at most {DARK_MAX_LEVEL:.0%} (cap the lens; a "
             "camera that adds a black level the frames do not declare: give black_level in their sidecars)")
-
-
-def _num(v: Any) -> float | None:
-    return None if v is None else float(v)
-
-
-def _same(name: str, key: str, got: Any, want: Any, ok: bool) -> None:
-    if not ok:
-        raise CalibrationError(f"{name}: {key} {got} differs from the first frame's {want}: "
-                               "every frame of one calibration must share it")
-
-
-def _check_saturation(stats: _Stats, what: str, limit: float = 1e-3) -> None:
-    total = stats.count * stats.shape[0] * stats.shape[1]
-    if total and stats.saturated / total > limit:
-        raise CalibrationError(
-            f"{what} frames are saturated: {stats.saturated / total:.2%} of the samples reach the white level "
-            f"{stats.white_level:g} (expected under {limit:.1%}); lower the exposure or the light")
-
-
-def _result(stats: _Stats, base: Calibration | None) -> Calibration:
-    """A calibration carrying ``base``'s maps and the frames' metadata."""
-    if base is not None:
-        cal = base.copy()
-        cal.source = None
-        cal.created = _now()
-        for key in ("camera_id", "roi", "reverse_x", "reverse_y"):
-            if getattr(cal, key) is None and getattr(stats, key) is not None:
-                setattr(cal, key, getattr(stats, key))
-        return cal
-    return Calibration(
-        layout=stats.layout, height=stats.shape[0], width=stats.shape[1], bit_depth=stats.bit_depth,
-        camera_id=stats.camera_id, exposure_us=stats.exposure_us, gain_db=stats.gain_db,
-        black_level=stats.black_level, white_level=stats.white_level, roi=stats.roi,
-        reverse_x=stats.reverse_x, reverse_y=stats.reverse_y,
-    )
-
-
-def _stage_info(stats: _Stats, **extra: Any) -> dict[str, Any]:
-    info: dict[str, Any] = {
-        "frames": stats.count, "exposure_us": stats.exposure_us, "gain_db": stats.gain_db,
-        "bit_depth": stats.bit_depth, "black_level": stats.black_level, "white_level": stats.white_level,
-    }
-    info.update(extra)
-    return info
-
-
-def _mosaic_correction(base: Calibration | None, stats: _Stats) -> tuple[np.ndarray | float, np.ndarray | float]:
-    """(offset, flat) to turn counts into dark-subtracted, flat-corrected signal."""
-    offset: np.ndarray | float = stats.black_level
-    flat: np.ndarray | float = 1.0
-    if base is not None and base.has("dark"):
-        offset = base.maps["dark"].astype(np.float64)
-    if base is not None and base.has("flat"):
-        flat = base.maps["flat"].astype(np.float64)
-    return offset, flat
-
-
-def _local_outliers(values: np.ndarray, sigma: float, *, floor: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Robust outliers of ``values`` against their local median: (mask, deviation, robust sigma)."""
-    local = ndimage.median_filter(values, size=_LOCAL, mode="reflect")
-    dev = values - local
-    s = max(robust_sigma(dev), floor)
-    return np.abs(dev) > sigma * s, dev, s
-
-
-# ---------------------------------------------------------------------------
-# dark
-# ---------------------------------------------------------------------------
-
-#: Largest mean level of a dark frame above its black level, as a share of the range (white level
-#: minus black level): a capped sensor reads its black level, dark current and read noise; more
-#: than this is light (a lit scene, a lens not capped) or a black level the frame does not declare.
-DARK_MAX_LEVEL = 0.05
 
 
 def calibrate_dark(frames: Frames, *, layout: str | Layout | None = None, base: Calibration | None = None,
@@ -500,13 +307,6 @@ def calibrate_flat(frames: Frames, *, layout: str | Layout | None = None, base: 
     return cal
 
 
-def _class_name(layout: Layout, k: int) -> str:
-    angle = ANGLES[k % 4]
-    if not layout.is_color:
-        return f"{angle}"
-    return f"{'RGB'[k // 4]}{angle}"
-
-
 # ---------------------------------------------------------------------------
 # polarizer
 # ---------------------------------------------------------------------------
@@ -613,6 +413,59 @@ def calibrate_polarizer(frames: Frames, angles_deg: Sequence[float], *, layout: 
         off the layout's nominal angles in some class (angles measured in
         the opposite sense, or the wrong layout).
     """
+    angles = _checked_polarizer_input(angles_deg, zero=zero, source_dolp=source_dolp, outlier_sigma=outlier_sigma)
+    stats, coef, resid, offset = _fit_sinusoids(frames, angles, layout=layout, base=base,
+                                                check_settings=check_settings)
+    c0 = coef[0]
+    scale, dia, theta = model_from_coefficients(c0, coef[1], coef[2], source_dolp=source_dolp)
+    span = stats.white_level - float(np.median(offset))
+    if not float(np.median(c0)) > _MIN_SIGNAL * span:
+        raise CalibrationError(
+            f"polarizer frames too dark: median signal {float(np.median(c0)):.4g} counts, expected at "
+            f"least 2% of the range ({_MIN_SIGNAL * span:.4g})")
+    lay = stats.layout
+    h, w = stats.shape
+    known_bad = _known_bad(base, c0)
+    good = ~known_bad
+    med_d = float(np.median(dia[good])) if good.any() else 0.0
+    if med_d < _MIN_MEDIAN_D:
+        raise CalibrationError(
+            f"calibration light barely polarized: median diattenuation {med_d:.3f} (expected near 1 for a "
+            "polarization sensor): is the polarizer in the beam, and source_dolp right?")
+    nominal = nominal_orientation(lay, h, w)
+    delta = _wrap90(theta - nominal)
+    common = 0.0
+    if zero == "sensor":
+        common = _circular_mean_deg(delta[good])
+        theta = np.mod(theta - common, 180.0)
+        delta = _wrap90(theta - nominal)
+    classes = class_index(lay, h, w)
+    offsets = _class_offsets(delta, classes, good, lay)
+    colour = class_index(lay, h, w, angle=False)
+    gain = scale / _class_mean(scale, colour, good)
+    outlier = _polarizer_outliers((gain, dia, delta, resid), classes, good, known_bad, outlier_sigma)
+    gain = np.where(np.isfinite(gain), gain, 0.0)
+    cal = _result(stats, base)
+    if cal.camera_id is None:
+        cal.camera_id = camera_id
+    cal.maps["gain"] = gain.astype(np.float32)
+    cal.maps["diattenuation"] = dia.astype(np.float32)
+    cal.maps["orientation_deg"] = np.where(theta >= 180.0, 0.0, theta).astype(np.float32)
+    cal.maps["residual"] = resid.astype(np.float32)
+    cal.maps["outlier"] = outlier
+    distinct = np.unique(np.round(np.mod(angles, 180.0), 2) % 180.0)
+    cal.stages["polarizer"] = _stage_info(
+        stats, angles_deg=[float(a) for a in distinct], source_dolp=source_dolp, zero=zero,
+        common_rotation_deg=common, outlier_sigma=outlier_sigma,
+        after_dark=bool(base and base.has("dark")), after_flat=bool(base and base.has("flat")),
+        statistics=_polarizer_statistics(gain, dia, delta, resid, outlier, offsets))
+    cal.__post_init__()
+    return cal
+
+
+def _checked_polarizer_input(angles_deg: Sequence[float], *, zero: str, source_dolp: float,
+                             outlier_sigma: float) -> np.ndarray:
+    """The options of :func:`calibrate_polarizer` checked, and its angles as float64 (degrees, one per frame)."""
     if zero not in ("polarizer", "sensor"):
         raise CalibrationError(f"zero {zero!r}: expected 'polarizer' or 'sensor'")
     if not (0 < source_dolp <= 1):
@@ -623,6 +476,18 @@ def calibrate_polarizer(frames: Frames, angles_deg: Sequence[float], *, layout: 
     if not np.all(np.isfinite(angles)):
         raise CalibrationError(f"polarizer angles {angles.tolist()}: expected finite numbers (degrees)")
     check_angles(angles)
+    return angles
+
+
+def _fit_sinusoids(frames: Frames, angles: np.ndarray, *, layout: str | Layout | None, base: Calibration | None,
+                   check_settings: bool) -> tuple[_Stats, np.ndarray, np.ndarray, np.ndarray | float]:
+    """Per pixel, the least-squares fit ``I(a) = c0 + c1 cos 2a + c2 sin 2a`` to the corrected frames.
+
+    The normal equations are accumulated frame by frame (memory does not grow with the number of
+    frames).  Returns the series' statistics, the coefficients (3, H, W), the fit residual (H, W:
+    RMS over frames of the misfit, over ``c0``; 0 where ``c0 <= 0``) and the dark offset that was
+    subtracted (a map or a number).
+    """
     rad = np.deg2rad(angles)
     ata = np.zeros((3, 3))
     aty: np.ndarray | None = None
@@ -657,36 +522,25 @@ def calibrate_polarizer(frames: Frames, angles_deg: Sequence[float], *, layout: 
     rss = yy - np.einsum("khw,khw->hw", coef, aty)  # sum (y - A c)^2 = y.y - c.A^T y
     rss = np.maximum(rss, 0.0)
     c0 = coef[0]
-    scale, dia, theta = model_from_coefficients(c0, coef[1], coef[2], source_dolp=source_dolp)
     with np.errstate(divide="ignore", invalid="ignore"):
         resid = np.where(c0 > 0, np.sqrt(rss / max(n - 3, 1)) / np.where(c0 > 0, c0, 1.0), 0.0)
-    span = stats.white_level - float(np.median(offset))
-    if not float(np.median(c0)) > 0.02 * span:
-        raise CalibrationError(
-            f"polarizer frames too dark: median signal {float(np.median(c0)):.4g} counts, expected at "
-            f"least 2% of the range ({0.02 * span:.4g})")
+    return stats, coef, resid, offset
 
-    lay = stats.layout
-    nominal = nominal_orientation(lay, h, w)
-    known_bad = np.zeros((h, w), dtype=bool)
+
+def _known_bad(base: Calibration | None, c0: np.ndarray) -> np.ndarray:
+    """(H, W) bool: hot or dead in ``base``, or no signal (``c0 <= 0``)."""
+    known_bad = np.zeros(c0.shape, dtype=bool)
     if base is not None:
         for key in ("hot", "dead"):
             if key in base.maps:
                 known_bad |= base.maps[key]
     known_bad |= ~(c0 > 0)
-    good = ~known_bad
-    med_d = float(np.median(dia[good])) if good.any() else 0.0
-    if med_d < 0.5:
-        raise CalibrationError(
-            f"calibration light barely polarized: median diattenuation {med_d:.3f} (expected near 1 for a "
-            "polarization sensor): is the polarizer in the beam, and source_dolp right?")
-    delta = _wrap90(theta - nominal)
-    common = 0.0
-    if zero == "sensor":
-        common = _circular_mean_deg(delta[good])
-        theta = np.mod(theta - common, 180.0)
-        delta = _wrap90(theta - nominal)
-    classes = class_index(lay, h, w)
+    return known_bad
+
+
+def _class_offsets(delta: np.ndarray, classes: np.ndarray, good: np.ndarray, lay: Layout) -> dict[str, float]:
+    """Median orientation offset from nominal of each angle/colour class; a class off by more than
+    :data:`MAX_CLASS_OFFSET_DEG` raises (angles in the opposite sense, offset, or the wrong layout)."""
     offsets = {}
     for k in np.unique(classes):
         sel = (classes == k) & good
@@ -698,15 +552,23 @@ def calibrate_polarizer(frames: Frames, angles_deg: Sequence[float], *, layout: 
                 f"degrees (median), {med:+.1f} from nominal: expected within {MAX_CLASS_OFFSET_DEG:g}. "
                 f"Are the polarizer angles measured in the opposite sense, offset (try zero='sensor'), "
                 f"or is the layout ({lay}) wrong?")
-    colour = class_index(lay, h, w, angle=False)
-    gain = scale / _class_mean(scale, colour, good)
+    return offsets
 
+
+def _polarizer_outliers(maps: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], classes: np.ndarray,
+                        good: np.ndarray, known_bad: np.ndarray, outlier_sigma: float) -> np.ndarray:
+    """(H, W) bool: known bad, or a robust outlier of its class in gain, D, orientation or (above) residual.
+
+    ``maps`` is (gain, diattenuation, orientation offset, residual); the robust spreads have the
+    floors ``_FLOOR_*`` (the residual's: ``_FLOOR_RESIDUAL`` of its class median).
+    """
+    gain, dia, delta, resid = maps
     outlier = known_bad.copy()
     for k in np.unique(classes):
         sel = (classes == k) & good
         if not sel.any():
             continue
-        res_floor = 0.1 * float(np.median(resid[sel]))
+        res_floor = _FLOOR_RESIDUAL * float(np.median(resid[sel]))
         for vals, floor, one_sided in ((gain, _FLOOR_GAIN, False), (dia, _FLOOR_D, False),
                                        (delta, _FLOOR_THETA, False), (resid, res_floor, True)):
             v = vals[sel]
@@ -715,33 +577,23 @@ def calibrate_polarizer(frames: Frames, angles_deg: Sequence[float], *, layout: 
             z = (vals - med) / s
             hit = (z > outlier_sigma) if one_sided else (np.abs(z) > outlier_sigma)
             outlier |= hit & (classes == k)
-    gain = np.where(np.isfinite(gain), gain, 0.0)
-    cal = _result(stats, base)
-    if cal.camera_id is None:
-        cal.camera_id = camera_id
-    cal.maps["gain"] = gain.astype(np.float32)
-    cal.maps["diattenuation"] = dia.astype(np.float32)
-    cal.maps["orientation_deg"] = np.where(theta >= 180.0, 0.0, theta).astype(np.float32)
-    cal.maps["residual"] = resid.astype(np.float32)
-    cal.maps["outlier"] = outlier
+    return outlier
+
+
+def _polarizer_statistics(gain: np.ndarray, dia: np.ndarray, delta: np.ndarray, resid: np.ndarray,
+                          outlier: np.ndarray, offsets: dict[str, float]) -> dict[str, Any]:
+    """The polarizer stage's summary over the pixels that are not outliers."""
     ok = ~outlier
-    distinct = np.unique(np.round(np.mod(angles, 180.0), 2) % 180.0)
-    cal.stages["polarizer"] = _stage_info(
-        stats, angles_deg=[float(a) for a in distinct], source_dolp=source_dolp, zero=zero,
-        common_rotation_deg=common, outlier_sigma=outlier_sigma,
-        after_dark=bool(base and base.has("dark")), after_flat=bool(base and base.has("flat")),
-        statistics={
-            "orientation_offset_deg": offsets,
-            "orientation_spread_deg": float(np.std(delta[ok])) if ok.any() else 0.0,
-            "diattenuation_median": float(np.median(dia[ok])) if ok.any() else 0.0,
-            "extinction_ratio_median": float((1 + np.median(dia[ok])) / max(1 - np.median(dia[ok]), 1e-9))
-            if ok.any() else 0.0,
-            "gain_spread": float(np.std(gain[ok])) if ok.any() else 0.0,
-            "residual_median": float(np.median(resid[ok])) if ok.any() else 0.0,
-            "outliers": int(outlier.sum()),
-        })
-    cal.__post_init__()
-    return cal
+    return {
+        "orientation_offset_deg": offsets,
+        "orientation_spread_deg": float(np.std(delta[ok])) if ok.any() else 0.0,
+        "diattenuation_median": float(np.median(dia[ok])) if ok.any() else 0.0,
+        "extinction_ratio_median": float((1 + np.median(dia[ok])) / max(1 - np.median(dia[ok]), 1e-9))
+        if ok.any() else 0.0,
+        "gain_spread": float(np.std(gain[ok])) if ok.any() else 0.0,
+        "residual_median": float(np.median(resid[ok])) if ok.any() else 0.0,
+        "outliers": int(outlier.sum()),
+    }
 
 
 def _wrap90(d: np.ndarray) -> np.ndarray:
