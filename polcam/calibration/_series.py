@@ -29,6 +29,9 @@ Frames = Iterable[FrameLike] | np.ndarray
 _MAD_TO_SIGMA = 1.482602218505602
 #: Side of the window of the local medians that dark and flat outliers are measured against, pixels.
 _LOCAL = 7
+#: Least median signal of the flat and polarizer frames, as a share of the range above the dark level: below it
+#: the fit's precision (shot and read noise over the signal) is too poor to calibrate.
+_MIN_SIGNAL = 0.02
 
 
 def robust_sigma(x: np.ndarray) -> float:
