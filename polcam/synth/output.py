@@ -121,10 +121,7 @@ def write_scene(rendered: Rendered, out_dir: str | PathLike[str], *, bit_depth: 
     FrameWriteError
         A bad ``bit_depth`` or an unwritable folder.
     """
-    import cv2
-
-    from polcam.frame import Frame
-    from polcam.io import atomic_path, atomic_write, write_frame, write_image
+    from polcam.io import atomic_write, write_image
 
     out = Path(out_dir)
     if not (isinstance(bit_depth, (int, np.integer)) and 8 <= bit_depth <= 16):
@@ -144,23 +141,8 @@ def write_scene(rendered: Rendered, out_dir: str | PathLike[str], *, bit_depth: 
     written["aolp_true"] = write_image(out / "aolp_true.exr", rendered.aolp_true, metadata=meta)
     written["dolp_spec"] = write_image(out / "dolp_spec.exr", rendered.dolp_spec, metadata=meta)
 
-    def _png(name: str, img: np.ndarray) -> Path:
-        target = out / name
-        with atomic_path(target) as tmp:
-            if not cv2.imwrite(str(tmp), img):
-                raise FrameWriteError("OpenCV could not write the PNG", path=target)
-        return target
-
-    written["mask"] = _png("mask.png", np.where(rendered.mask, 255, 0).astype(np.uint8))
-    mean = np.clip(stack.mean(axis=0), 0.0, 1.0)
-    srgb = np.where(mean <= 0.0031308, 12.92 * mean, 1.055 * np.power(mean, 1 / 2.4) - 0.055)
-    written["preview"] = _png("preview.png", cv2.cvtColor((srgb * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR))
-    for name in RAW_LAYOUTS:
-        lay = parse_layout(name)
-        counts = _to_counts(mosaic(stack, lay), int(bit_depth))
-        frame = Frame(counts, layout=lay, bit_depth=int(bit_depth), black_level=0.0,
-                      white_level=float(2 ** int(bit_depth) - 1), metadata={"msb_aligned": False})
-        written[f"raw_{name}"] = write_frame(out / f"raw_{name}.png", frame)
+    written.update(_write_pngs(out, rendered.mask, stack))
+    written.update(_write_raw(out, stack, int(bit_depth)))
     doc = {
         "info": rendered.info,
         "files": {k: p.name for k, p in written.items()},
@@ -170,6 +152,45 @@ def write_scene(rendered: Rendered, out_dir: str | PathLike[str], *, bit_depth: 
     with atomic_write(target, "w") as fh:
         fh.write(json.dumps(doc, indent=2, default=_json_default) + "\n")
     written["scene"] = target
+    return written
+
+
+def _write_pngs(out: Path, mask: np.ndarray, stack: np.ndarray) -> dict[str, Path]:
+    """``mask.png`` (255 on the object) and ``preview.png`` (the mean over angles, sRGB-encoded), 8-bit."""
+    import cv2
+
+    from polcam.io import atomic_path
+
+    def _png(name: str, img: np.ndarray) -> Path:
+        target = out / name
+        with atomic_path(target) as tmp:
+            if not cv2.imwrite(str(tmp), img):
+                raise FrameWriteError("OpenCV could not write the PNG", path=target)
+        return target
+
+    written = {"mask": _png("mask.png", np.where(mask, 255, 0).astype(np.uint8))}
+    srgb = _srgb_encode(np.clip(stack.mean(axis=0), 0.0, 1.0))
+    written["preview"] = _png("preview.png", cv2.cvtColor((srgb * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR))
+    return written
+
+
+def _srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function (IEC 61966-2-1) of linear values in [0, 1]: a line near black, then a power 1/2.4."""
+    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
+
+
+def _write_raw(out: Path, stack: np.ndarray, bit_depth: int) -> dict[str, Path]:
+    """``raw_<layout>.png`` and its sidecar for each of :data:`RAW_LAYOUTS`: the mosaic in counts of ``bit_depth`` bits."""
+    from polcam.frame import Frame
+    from polcam.io import write_frame
+
+    written = {}
+    for name in RAW_LAYOUTS:
+        lay = parse_layout(name)
+        counts = _to_counts(mosaic(stack, lay), bit_depth)
+        frame = Frame(counts, layout=lay, bit_depth=bit_depth, black_level=0.0,
+                      white_level=float(2 ** bit_depth - 1), metadata={"msb_aligned": False})
+        written[f"raw_{name}"] = write_frame(out / f"raw_{name}.png", frame)
     return written
 
 
