@@ -8,6 +8,7 @@ A long function is split into named steps, each with its constants named beside 
 from __future__ import annotations
 
 import ast
+from functools import cache
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "polcam"
@@ -37,6 +38,7 @@ ALLOWED: set[str] = {
 }
 
 
+@cache
 def _long_functions(package: Path = PACKAGE) -> dict[str, int]:
     """``"path:qualname"`` -> length, for every function or method over MAX_LINES."""
     out: dict[str, int] = {}
