@@ -20,7 +20,7 @@ from polcam._xp import namespace
 from polcam.separation._illuminant import _SATURATED, _plane_basis
 from polcam.separation._polarization_noise import _COHERENT_KSIG, _prior_removal, _reduction
 
-__all__ = ["residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask", "ONE_CODE"]
+__all__ = ["residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
 
 #: Where polarized highlights measure k (unpolarized / polarized specular light) below this, the colour
 #: prior is weighted down in proportion: step 2 has already removed almost all of their specular light.
@@ -35,7 +35,7 @@ _DIFFUSE_FIT = 0.3
 
 #: One 8-bit code value: the least light a display shows, and so the least amplitude or residual that
 #: counts as specular light, whatever the threshold in relative terms.
-ONE_CODE = 1.0 / 255
+_ONE_CODE = 1.0 / 255
 #: Least light (channel sum or norm) by which a colour or share is divided: far below one code value, so
 #: it only keeps black pixels from dividing by zero.
 _LIGHT_GUARD = 1e-6
@@ -176,7 +176,7 @@ def _diffuse_part(v: dict[str, Any], e: Any, a: Any, a_coh: Any) -> tuple[Any, A
     ga = amp_px @ gx
     al, be, dom = fit(ga, (amp_px * e).sum(axis=-1))
     # significant: beyond the typical misfit's noise, one code value and a share of the pixel's intensity
-    sig_off = off > _MISFIT_NOISE * noise + xp.maximum(_MISFIT_SHARE * xp.vnorm(ic, axis=-1), ONE_CODE)
+    sig_off = off > _MISFIT_NOISE * noise + xp.maximum(_MISFIT_SHARE * xp.vnorm(ic, axis=-1), _ONE_CODE)
     # and explained: what G leaves of the pixel's amplitudes lies along its own body colour e (the
     # two-colour fit leaves under _DIFFUSE_FIT of it); demosaicing's false polarization (one
     # channel's interpolation error, a neighbour's colour at an edge) points elsewhere
@@ -191,7 +191,7 @@ def _diffuse_part(v: dict[str, Any], e: Any, a: Any, a_coh: Any) -> tuple[Any, A
     # strongly polarized highlights)
     a_c = xp.where(al * be < 0, abs(al), 0.0)
     plaus = (abs(be)[..., None] * e
-             <= _MAX_DIFFUSE_DOLP * xp.maximum(ic - a_c[..., None] * gx, 0.0) + ONE_CODE).all(axis=-1)
+             <= _MAX_DIFFUSE_DOLP * xp.maximum(ic - a_c[..., None] * gx, 0.0) + _ONE_CODE).all(axis=-1)
     take = well & sig_off & ((al * be < 0) | dom) & plaus
     a = xp.astype(xp.where(take, xp.where(al * be < 0, abs(al), 0.0), a), xp.float32)
     b = xp.astype(xp.where(take, abs(be), 0.0), xp.float32)
@@ -215,7 +215,7 @@ def highlight_mask(a_coh: Any, lum: Any, k_small: int, g: np.ndarray, threshold:
     """
     xp = namespace(a_coh)
     floor, a_eff, lum_s, gate = coherent_gate(a_coh, lum, k_small, threshold, float(g.mean()))
-    spec = a_eff * float(g.mean()) > xp.maximum(threshold * lum_s, ONE_CODE)
+    spec = a_eff * float(g.mean()) > xp.maximum(threshold * lum_s, _ONE_CODE)
     return floor, a_eff, gate, spec
 
 
@@ -287,7 +287,7 @@ def _unpolarized_ratio(imin: Any, gx: Any, a_pix: Any, gate: Any, spec: Any, r_c
     which overstated k).  Returns the image's k, where it came from, and the local k (H, W).
     """
     xp = namespace(imin)
-    rel = coloured & spec & (a_pix > ONE_CODE)
+    rel = coloured & spec & (a_pix > _ONE_CODE)
     num_p = xp.astype(xp.where(rel, xp.minimum(r_col, max_ratio * a_pix), 0.0), xp.float32)
     den_p = xp.astype(xp.where(rel, a_pix, 0.0), xp.float32)
     if int(rel.sum()) >= _MIN_SAMPLES:
