@@ -7,7 +7,7 @@ squares with ``I(a) = c0 + c1 cos 2a + c2 sin 2a`` (the normal equations are
 accumulated frame by frame, so memory does not grow with the number of
 frames); then ``g ~ c0`` (normalised to mean 1 per colour class),
 ``D = hypot(c1, c2) / (p c0)`` with ``p`` the calibration light's degree of
-polarization, and ``theta = atan2(c2, c1) / 2`` (docs/calibration.md; Hagen
+polarization, and ``theta = atan2(c2, c1) / 2`` (docs/guide/calibration.md; Hagen
 et al. 2019 calibrate from a rotated polarizer likewise).  The fit residual (RMS over frames of the misfit, over
 ``c0``) and a map of outliers (robust outliers of g, D, theta - nominal and
 the residual within each angle/colour class) come with it.
@@ -120,7 +120,7 @@ def calibrate_polarizer(frames: Frames, angles_deg: Sequence[float], *, layout: 
         Frames of uniform light through a linear polarizer, in any order
         ((N, H, W) counts or Frames).  Per-pixel precision scales as
         ``1 / sqrt(N * electrons)``: about 0.03 degree and 0.001 in D for
-        N = 256 frames of 8000 electrons (docs/calibration.md).
+        N = 256 frames of 8000 electrons (docs/guide/calibration.md).
     angles_deg
         The polarizer angle of each frame, degrees, in the image convention of
         :mod:`polcam.polarimetry` (from the image x axis towards the layout's

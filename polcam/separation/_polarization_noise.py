@@ -1,6 +1,6 @@
 """Noise of a polarization stack's Stokes components, and the garrotes that shrink what noise explains.
 
-Used by ``polarized-residual`` (docs/algorithm.md, polarized-residual, steps 2 and 6): the
+Used by ``polarized-residual`` (docs/methods/polarized-residual.md, steps 2 and 6): the
 deviation of q and u per pixel measured from the stack itself (:func:`_stokes_noise`), the
 polarized amplitude's noise bias removed (:func:`_debias`), and the colour prior's removal
 shrunk by the noise of Ic (:func:`_prior_removal`).
