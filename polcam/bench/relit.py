@@ -230,9 +230,39 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     -------
     list of RelitScore
     """
-    from polcam.bench.real import achromatic_mask, camera_stack, find_scenes, load_stack, metrics, prepare, relight
+    from polcam.bench.real import achromatic_mask, camera_stack, load_stack, prepare, relight
+
+    found, names, meths = _selection(data, scenes, variants, methods, mono)
+    options = options or {}
+    out: list[RelitScore] = []
+    for name, files in found.items():
+        recorded = prepare(load_stack(files), crop=crop, scale=scale)
+        ach = achromatic_mask(recorded)
+        for v in names:
+            exposure, light = VARIANTS[v]
+            true = relight(recorded, exposure=exposure, light=light)
+            matte = matte_mask(ach, true)
+            if mono:
+                true = true.mean(axis=-1, keepdims=True)
+                given = _mono_camera(true[..., 0])[..., None]
+            else:
+                given = camera_stack(true)
+            for m in meths:
+                out.append(_score(name, v, m, given, true, matte, mono=mono, options=options.get(m, {})))
+                if progress and out[-1].error is None:
+                    s = out[-1]
+                    print(f"  {name:<8} {v:<19} {m:<19} matte kept {s.matte_kept:.3f}  top1% {s.top_removed:.3f}  "
+                          f"spread {s.spread:.3f}  invented {s.invented:.4f} (clipped {s.clipped_share:.1%})  "
+                          f"{s.seconds:6.2f} s", flush=True)
+    return out
+
+
+def _selection(data: Path, scenes: Sequence[str] | None, variants: Sequence[str] | None,
+               methods: Sequence[str] | None, mono: bool) -> tuple[dict[str, Any], list[str], list[str]]:
+    """The stacks, variants and methods to run, each checked (PolcamError naming what is unknown)."""
+    from polcam.bench.real import find_scenes
     from polcam.errors import PolcamError
-    from polcam.separation import METHODS, method_spec, separate
+    from polcam.separation import METHODS, method_spec
 
     found = find_scenes(Path(data))
     if not found:
@@ -249,41 +279,27 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     meths = list(methods or [m for m in METHODS if not mono or method_spec(m).mono])
     for m in meths:
         method_spec(m)
-    options = options or {}
-    out: list[RelitScore] = []
-    for name, files in found.items():
-        recorded = prepare(load_stack(files), crop=crop, scale=scale)
-        ach = achromatic_mask(recorded)
-        for v in names:
-            exposure, light = VARIANTS[v]
-            true = relight(recorded, exposure=exposure, light=light)
-            matte = matte_mask(ach, true)
-            if mono:
-                true = true.mean(axis=-1, keepdims=True)
-                given = _mono_camera(true[..., 0])[..., None]
-            else:
-                given = camera_stack(true)
-            for m in meths:
-                t0 = time.perf_counter()
-                try:
-                    res = separate(given[..., 0] if mono else given, method=m, **options.get(m, {}))
-                except Exception as exc:  # a failing method is reported, not fatal to the table
-                    out.append(RelitScore(name, v, m, *([float("nan")] * 5), time.perf_counter() - t0,
-                                          error=f"{type(exc).__name__}: {exc}"))
-                    continue
-                sec = float(res.info.get("seconds", time.perf_counter() - t0))
-                dif = res.diffuse[..., None] if mono else res.diffuse
-                spe = res.specular[..., None] if mono else res.specular
-                mt = metrics(dif, spe, given, true, achromatic=matte)
-                inv, share = invented_structure(dif, given)
-                out.append(RelitScore(name, v, m, mt["achromatic_kept"], mt["top_removed"], mt["spread"], inv,
-                                      share, sec))
-                if progress:
-                    s = out[-1]
-                    print(f"  {name:<8} {v:<19} {m:<19} matte kept {s.matte_kept:.3f}  top1% {s.top_removed:.3f}  "
-                          f"spread {s.spread:.3f}  invented {s.invented:.4f} (clipped {share:.1%})  {sec:6.2f} s",
-                          flush=True)
-    return out
+    return found, names, meths
+
+
+def _score(name: str, v: str, m: str, given: np.ndarray, true: np.ndarray, matte: np.ndarray, *, mono: bool,
+           options: dict[str, Any]) -> RelitScore:
+    """One method on one relit stack; a failing method is reported in ``error``, not fatal to the table."""
+    from polcam.bench.real import metrics
+    from polcam.separation import separate
+
+    t0 = time.perf_counter()
+    try:
+        res = separate(given[..., 0] if mono else given, method=m, **options)
+    except Exception as exc:  # a failing method is reported, not fatal to the table
+        return RelitScore(name, v, m, *([float("nan")] * 5), time.perf_counter() - t0,
+                          error=f"{type(exc).__name__}: {exc}")
+    sec = float(res.info.get("seconds", time.perf_counter() - t0))
+    dif = res.diffuse[..., None] if mono else res.diffuse
+    spe = res.specular[..., None] if mono else res.specular
+    mt = metrics(dif, spe, given, true, achromatic=matte)
+    inv, share = invented_structure(dif, given)
+    return RelitScore(name, v, m, mt["achromatic_kept"], mt["top_removed"], mt["spread"], inv, share, sec)
 
 
 def _mono_camera(true_grey: np.ndarray) -> np.ndarray:

@@ -104,8 +104,8 @@ def _prior_removal(diffuse: Any, sf: Any, sig: Any, *, smooth: int | None = None
     the noise alone.  With ``smooth`` (an odd Gaussian kernel side), the removal is kept whole where
     its Gaussian-smoothed value exceeds ``_COHERENT_KSIG`` of its own deviations (a coherent
     highlight's, which the garrote would shrink by ``_KSIG^2 var / removal``: a quarter at five
-    deviations), blended with the garroted removal over one deviation around that threshold (ninth
-    round: no jump).  Returns (H, W, 3) float32 >= 0 (numpy or torch, as the input).
+    deviations), blended with the garroted removal over one deviation around that threshold (no
+    jump; docs/methods/polarized-residual.md).  Returns (H, W, 3) float32 >= 0 (numpy or torch, as the input).
     """
     xp = namespace(diffuse)
     delta = diffuse - xp.minimum(sf, diffuse)
@@ -161,8 +161,8 @@ def _axis_debias(q: Any, u: Any, c2: Any, s2: Any, smoothed: Any,
     for a coherent polarization, is debiased as one component.  Elsewhere the amplitude
     ``hypot(q, u)`` is debiased as before (:func:`_debias`).  The two are blended over one
     deviation, from ``_COHERENT_KSIG - 0.5`` to ``_COHERENT_KSIG + 0.5``: a hard switch made
-    ``Imin`` jump by up to 0.02 under a change of 1e-7 in the input (docs/methods/polarized-residual.md, ninth
-    round).  Returns (H, W, C) float32 >= 0.
+    ``Imin`` jump by up to 0.02 under a change of 1e-7 in the input
+    (docs/methods/polarized-residual.md).  Returns (H, W, C) float32 >= 0.
     """
     xp = namespace(q)
     par = q * c2 + u * s2
