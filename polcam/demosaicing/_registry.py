@@ -264,18 +264,7 @@ def demosaic(
     >>> polcam.demosaic(raw, layout="imx250mzr", resolution="cell").shape
     (4, 4, 4)
     """
-    if isinstance(method, ResolvedDemosaic):
-        resolved = method
-        if layout is not None and parse_layout(layout) != resolved.layout:
-            raise MethodError(f"demosaicing method {resolved.method!r} was resolved for layout "
-                              f"{resolved.layout}; got layout {layout}")
-    else:
-        if layout is None:
-            if isinstance(raw, Frame) and raw.layout is not None:
-                layout = raw.layout
-            else:
-                raise LayoutError("no layout given: pass layout= (e.g. 'imx250mzr' or 'imx250myr')")
-        resolved = resolve_demosaic(method, layout)
+    resolved = _resolved_for(raw, layout, method)
     spec, lay = resolved.spec, resolved.layout
     if resolution not in RESOLUTIONS:
         raise MethodError(f"resolution {resolution!r}: expected 'full' or 'cell'")
@@ -290,6 +279,22 @@ def demosaic(
     if resolution == "cell":
         return (spec.cell or bilinear_cells)(img, lay)
     return spec.fn(img, lay)
+
+
+def _resolved_for(raw: np.ndarray | Frame, layout: str | Layout | None,
+                  method: str | ResolvedDemosaic | None) -> ResolvedDemosaic:
+    """:func:`demosaic`'s method: ``method`` as resolved (``layout``, when given, the same), or resolved
+    here for ``layout``, else the frame's own."""
+    if isinstance(method, ResolvedDemosaic):
+        if layout is not None and parse_layout(layout) != method.layout:
+            raise MethodError(f"demosaicing method {method.method!r} was resolved for layout "
+                              f"{method.layout}; got layout {layout}")
+        return method
+    if layout is None:
+        if not (isinstance(raw, Frame) and raw.layout is not None):
+            raise LayoutError("no layout given: pass layout= (e.g. 'imx250mzr' or 'imx250myr')")
+        layout = raw.layout
+    return resolve_demosaic(method, layout)
 
 
 def mosaic_stack(stack: np.ndarray, *, layout: str | Layout) -> np.ndarray:
