@@ -111,7 +111,7 @@ def test_cuda_device_is_named_or_refused_clearly():
         gpu = False
     cmd = [sys.executable, "-m", "polcam", "bench", "speed", "--device", "cuda", "--sizes", "16",
            "--exact-max", "0", "--no-frame"]
-    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
     if gpu:
         assert res.returncode == 0, res.stderr
         assert res.stdout.splitlines()[0] == f"device cuda: {torch.cuda.get_device_name()}"
@@ -137,8 +137,9 @@ def test_targets_run_prints_every_figure(capsys):
     pytest.importorskip("polanalyser")
     assert main(["--repeat", "1"]) == 0
     out = capsys.readouterr().out
-    for figure in ("maps, mono: polcam bilinear vs polanalyser", "maps, mono: polcam default (eari)",
-                   "maps, colour: polcam bilinear vs polanalyser", "maps, colour: polcam default (lmmse)",
+    for figure in ("maps, mono: polcam bilinear vs polanalyser", "maps, mono: polcam default (eari) vs polanalyser",
+                   "maps, colour: polcam bilinear vs polanalyser",
+                   "maps, colour: polcam default (lmmse) vs polanalyser",
                    "separation, wen21, 1224 x 1024 colour", "separation, colour default (wen21), 1224 x 1024",
                    "raw 2448 x 2048 colour -> maps and layers (wen21, cell)"):
         assert f"| {figure} |" in out, figure

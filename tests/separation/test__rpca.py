@@ -28,7 +28,7 @@ def _problem(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray,
 def test_blocks_on_threads_give_the_serial_result_bit_for_bit(monkeypatch, parts):
     monkeypatch.setattr(_rpca, "_IALM_BLOCK", 256)  # 1000 pixels: 4 blocks, unevenly split
     m, lower, prior, g = _problem(1000)
-    kw = dict(lam=1 / np.sqrt(1000), beta=0.5, tol=1e-9, max_iter=60)
+    kw = {"lam": 1 / np.sqrt(1000), "beta": 0.5, "tol": 1e-9, "max_iter": 60}
     serial, its, conv = _rpca_direction_t(m, lower, prior, g, **kw)
     with ThreadPoolExecutor(max_workers=2) as pool:
         threaded, its_t, conv_t = _rpca_direction_t(m, lower, prior, g, pool=pool, parts=parts, **kw)
@@ -40,7 +40,7 @@ def test_blocked_solver_matches_the_general_one(monkeypatch):
     """The transposed, blocked path solves the same problem as rpca_ialm's general loop."""
     monkeypatch.setattr(_rpca, "_IALM_BLOCK", 256)
     m, lower, prior, g = _problem(1000, seed=1)
-    kw = dict(lam=1 / np.sqrt(1000), beta=0.5, tol=1e-9, max_iter=200)
+    kw = {"lam": 1 / np.sqrt(1000), "beta": 0.5, "tol": 1e-9, "max_iter": 200}
     with ThreadPoolExecutor(max_workers=2) as pool:
         sp, _, conv = _rpca_direction_t(m, lower, prior, g, pool=pool, parts=2, **kw)
     ref = rpca_ialm(m.T, lower=lower.T, upper=m.T, direction=g, prior=prior.T, **kw)
