@@ -18,7 +18,8 @@ Cases:
 
 With ``--maps`` it times the route from a raw frame to S0, DoLP and AoLP
 instead, polcam's beside polanalyser's (:mod:`polcam.bench.maps`).  With none
-of ``--sizes``, ``--method``, ``--maps`` it prints every speed target's figure
+of ``--sizes``, ``--method``, ``--maps`` (nor the solver's ``--tol``, ``--workers``,
+``--no-frame``, ``--full-resolution``) it prints every speed target's figure
 in one run (:mod:`polcam.bench.targets`: the maps' ratios, wen21 and the colour
 default at cell resolution, a raw frame to layers).  ``--device`` names the
 device first (a GPU's model), or fails with an error when it is not available.
@@ -411,7 +412,8 @@ def _positive_int(text: str) -> int:
 
 def run_args(a: argparse.Namespace) -> int:
     """Run ``polcam bench speed`` with parsed options; print the table."""
-    targets = not getattr(a, "maps", False) and a.sizes is None and a.method is None
+    targets = not getattr(a, "maps", False) and a.sizes is None and a.method is None and a.tol is None \
+        and a.workers is None and not a.no_frame and not a.full_resolution
     if a.device and (targets or getattr(a, "maps", False)):
         _print_device(a.device)
     if getattr(a, "maps", False):
