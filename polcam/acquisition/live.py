@@ -31,13 +31,20 @@ from polcam.sinks.base import Record, Sink
 if TYPE_CHECKING:
     from polcam.calibration.store import Calibration
 
-__all__ = ["Counters", "LiveProcessor"]
+__all__ = ["MAPS_FPS_WITH_LAYERS", "Counters", "LiveProcessor"]
 
 #: Niceness added to the separation thread (and the threads it starts) on Linux: the maps of every
 #: frame come first, the layers take the CPU left over.  With wen21 beside the maps of 5 MP colour
 #: frames on a loaded 2-core machine the maps ran at 7-8 fps without it, 10-18 fps with it
 #: (docs/benchmarks.md, "Live rates").
 SEPARATION_NICENESS = 10
+
+#: With a separation on its own thread (any method but ``imin``), the maps start at most this many
+#: frames a second.  The maps of a 5 MP colour frame take about 55 ms of CPU (``live_maps``), so a
+#: camera or a replay faster than this would otherwise keep both cores of a 2-core machine on the
+#: maps and leave the lower-priority separation next to nothing (layers at 0.1-0.25 fps from a
+#: replay at 30 fps); 25 keeps the maps above their 20 fps target.
+MAPS_FPS_WITH_LAYERS = 25.0
 
 #: Seconds over which the live rates plotted at ``/stats/maps_fps`` and ``/stats/layers_fps`` are counted.
 RATE_WINDOW_S = 5.0
@@ -159,7 +166,8 @@ class LiveProcessor:
         polarizer-cell stack of the newest frame (``polcam.demosaic``
         bilinear, clipped to [0, 1]) whenever the previous run is done, at
         a lower priority (Linux: :data:`SEPARATION_NICENESS`), so the maps
-        keep their rate.
+        keep their rate; the maps then start at most
+        :data:`MAPS_FPS_WITH_LAYERS` frames a second, so the layers get CPU too.
     separate_options
         Keyword options of that method (e.g. ``{"device": "cuda"}`` for the
         tensor method on a GPU).
@@ -224,6 +232,9 @@ class LiveProcessor:
         self._sep_lock = threading.Lock()
         self._sep_wake = threading.Condition(self._sep_lock)
         self._sep_pending: tuple[int, Frame] | None = None
+        # the earliest start of the next frame's maps (see MAPS_FPS_WITH_LAYERS)
+        self._maps_interval = 1.0 / MAPS_FPS_WITH_LAYERS if separate not in (None, "imin") else 0.0
+        self._next_maps = 0.0
         self.error: BaseException | None = None
         self._threads = [threading.Thread(target=self._run, name=f"live-{i}", daemon=True)
                          for i in range(max(1, int(workers)))]
@@ -249,12 +260,18 @@ class LiveProcessor:
     def _run(self) -> None:
         while True:
             with self._lock:
-                while self._pending is None and not self._closing:
-                    self._wake.wait()
-                if self._pending is None:
-                    return
+                while True:
+                    while self._pending is None and not self._closing:
+                        self._wake.wait()
+                    if self._pending is None:
+                        return
+                    early = self._next_maps - time.monotonic()
+                    if early <= 0 or self._closing:
+                        break
+                    self._wake.wait(early)  # a newer frame may replace the pending one meanwhile
                 index, frame = self._pending
                 self._pending = None
+                self._next_maps = time.monotonic() + self._maps_interval
             t0 = time.perf_counter()
             try:
                 self._process(index, frame)

@@ -17,7 +17,12 @@ Cases:
   resolution; the seconds include bilinear demosaicing.
 
 With ``--maps`` it times the route from a raw frame to S0, DoLP and AoLP
-instead, polcam's beside polanalyser's (:mod:`polcam.bench.maps`).
+instead, polcam's beside polanalyser's (:mod:`polcam.bench.maps`).  With none
+of ``--sizes``, ``--method``, ``--maps`` (nor the solver's ``--tol``, ``--workers``,
+``--no-frame``, ``--full-resolution``) it prints every speed target's figure
+in one run (:mod:`polcam.bench.targets`: the maps' ratios, wen21 and the colour
+default at cell resolution, a raw frame to layers).  ``--device`` names the
+device first (a GPU's model), or fails with an error when it is not available.
 
 With ``--method NAME`` (any registered method, e.g. ``polarized-residual``)
 that method alone is timed on the same cases (one row per case, no exact solver);
@@ -367,8 +372,9 @@ def format_markdown(rows: Sequence[SpeedRow]) -> str:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """Add the options of ``polcam bench speed`` to a parser."""
-    p.add_argument("--sizes", type=int, nargs="*", default=[128, 256, 512],
-                   help="sides of the synthetic scenes (default 128 256 512; none: the frame alone)")
+    p.add_argument("--sizes", type=int, nargs="*",
+                   help="sides of the synthetic scenes (128 256 512 when --method is given; none: the frame "
+                        "alone); without --sizes, --method and --maps: every speed target's figure")
     p.add_argument("--scenes", nargs="+", default=["Bunny4"], help="synthetic scenes (default Bunny4)")
     p.add_argument("--exact-max", type=int, default=256,
                    help="largest side the exact solver runs at (default 256)")
@@ -376,9 +382,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--full-resolution", action="store_true",
                    help="also the full frame at full resolution (2448 x 2048 per angle)")
     p.add_argument("--frame-scene", default="Bunny5", help="scene rendered for the sensor frame (default Bunny5)")
-    p.add_argument("--method", default="tensor",
-                   help="method timed (default tensor: its exact and fast solvers; another method is "
-                        "timed alone, e.g. polarized-residual)")
+    p.add_argument("--method",
+                   help="method timed (tensor: its exact and fast solvers, the default with --sizes; another "
+                        "method is timed alone, e.g. polarized-residual)")
     p.add_argument("--device", help="PyTorch device for the tensor method's fast solver or polarized-residual "
                                     "(default: numpy)")
     p.add_argument("--tol", type=float, help="stopping tolerance of the fast solver")
@@ -389,7 +395,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="instead: raw frame to S0, DoLP and AoLP, polanalyser's route and polcam's "
                         "(bilinear, default demosaicing) on one 2448 x 2048 frame, mono and colour, "
                         "as ratios (polcam.bench.maps)")
-    p.add_argument("--repeat", type=int, default=5, help="--maps: best of this many runs (default 5)")
+    p.add_argument("--repeat", type=int, default=5,
+                   help="--maps and the targets' maps: best of this many runs (default 5)")
 
 
 def _positive_int(text: str) -> int:
@@ -405,8 +412,16 @@ def _positive_int(text: str) -> int:
 
 def run_args(a: argparse.Namespace) -> int:
     """Run ``polcam bench speed`` with parsed options; print the table."""
+    targets = not getattr(a, "maps", False) and a.sizes is None and a.method is None and a.tol is None \
+        and a.workers is None and not a.no_frame and not a.full_resolution
+    if a.device and (targets or getattr(a, "maps", False)):
+        _print_device(a.device)
     if getattr(a, "maps", False):
         return _run_maps(a)
+    if targets:
+        return _run_targets(a)
+    a.sizes = [128, 256, 512] if a.sizes is None else a.sizes
+    a.method = a.method or "tensor"
     options: dict[str, Any] = {}
     if a.method != "tensor" and (a.tol is not None or a.workers is not None):
         raise MethodError(f"bench speed: --tol and --workers are the tensor method's options, "
@@ -418,6 +433,7 @@ def run_args(a: argparse.Namespace) -> int:
             raise MethodError(f"bench speed: --device: method {a.method!r} has no PyTorch backend "
                               "(tensor and polarized-residual have)")
     if a.device:
+        _print_device(a.device)
         options["device"] = a.device
     if a.tol is not None:
         options["tol"] = a.tol
@@ -436,6 +452,31 @@ def run_args(a: argparse.Namespace) -> int:
 
         with atomic_write(a.json, "w") as fh:
             json.dump([asdict(r) for r in rows], fh, indent=1)
+        print(f"wrote {a.json}")
+    return 0
+
+
+def _print_device(device: str) -> None:
+    """Print the device's name (a GPU's model); MethodError when it is not available."""
+    from polcam.bench.targets import device_name
+
+    print(f"device {device}: {device_name(device)}", flush=True)
+
+
+def _run_targets(a: argparse.Namespace) -> int:
+    from polcam.bench import targets
+
+    if a.device:
+        print("the figures below run on the CPU: the maps and wen21 have no PyTorch backend")
+    print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
+    rows = targets.run(repeat=a.repeat, scene=a.frame_scene)
+    print(f"load average {_load():.2f}")
+    print(targets.format_markdown(rows))
+    if a.json:
+        from polcam.io.atomic import atomic_write
+
+        with atomic_write(a.json, "w") as fh:
+            json.dump([dict(asdict(r), met=r.met) for r in rows], fh, indent=1)
         print(f"wrote {a.json}")
     return 0
 

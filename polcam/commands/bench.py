@@ -134,12 +134,17 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     from polcam.bench import speed as _speed
     from polcam.calibration import bench as _cal_bench
 
-    bp = bsub.add_parser("speed", help="separation speed (the tensor method's solvers; --method for others)",
-                         description="The tensor method's exact and fast solvers on the same inputs: seconds, "
+    bp = bsub.add_parser("speed", help="speed targets; the tensor method's solvers (--sizes), other methods "
+                                       "(--method), the maps (--maps)",
+                         description="Without --sizes, --method or --maps: every speed target's figure in one "
+                                     "run (the maps against polanalyser, wen21 and the colour default at cell "
+                                     "resolution, a raw 5 MP colour frame to layers), each beside its target. "
+                                     "With --sizes or --method: the tensor method's exact and fast solvers on "
+                                     "the same inputs (or that method alone): seconds, "
                                      "speed ratio, PSNR difference, iterations and peak memory on synthetic "
                                      "scenes, and the fast solver on a full 2448 x 2048 sensor frame from raw "
-                                     "to diffuse and specular (docs/benchmarks.md). Each case runs in a fresh "
-                                     "process.")
+                                     "to diffuse and specular (docs/benchmarks.md), each case in a fresh "
+                                     "process. --device names the device first and fails when it is missing.")
     _speed.add_arguments(bp)
     bc = bsub.add_parser("calibration", help="calibration on a synthetic imperfect sensor",
                          description="Dark, flat and polarizer calibration of a synthetic imperfect sensor: "

@@ -118,8 +118,10 @@ def _print_summary(summary: dict[str, Any]) -> None:
     print(f"capture stopped ({summary['stop_reason']}) after {summary['duration_s']:.1f} s: {line}; "
           f"{summary['fps']:.1f} fps received, {summary['fps_processed']:.1f} fps processed")
     if summary.get("maps_frames") or summary.get("separation"):
+        each = summary.get("separation_seconds_mean")
         layers = (f", layers {summary['layers_fps']:.2f} fps ({summary['layers_frames']} frames, "
-                  f"{summary['separation']})" if summary.get("separation") else "")
+                  f"{summary['separation']}{f', {each:.2f} s each' if each else ''})"
+                  if summary.get("separation") else "")
         print(f"live rates: maps {summary['maps_fps']:.1f} fps ({summary['maps_frames']} frames){layers}")
     if summary.get("out"):
         where = summary.get("summary_file")

@@ -32,7 +32,6 @@ full-resolution filter of that width.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator
 
 import cv2
@@ -42,7 +41,7 @@ from polcam.demosaicing._lattice import gauss_kernel, run_jobs, sublattices, ten
 from polcam.errors import MethodError
 from polcam.mosaic import Layout
 
-__all__ = ["lattice_filter", "lattice_smooth", "shared_ratio_stage"]
+__all__ = ["lattice_filter", "lattice_smooth", "shared_ratio_from_half", "shared_ratio_stage"]
 
 
 def lattice_smooth(val: np.ndarray, offsets: list[tuple[int, int]], period: int, sigma: float) -> np.ndarray:
@@ -176,6 +175,16 @@ def _filter_at_samples(samples: np.ndarray, period: int, sigma: float) -> np.nda
     return out[r:out.shape[0] - r, r:out.shape[1] - r]
 
 
+def _quarter_sum(stack: np.ndarray) -> np.ndarray:
+    """``stack.sum(axis=0) * 0.25`` of a (4, ...) float32 stack, summed in numpy's order
+    (((a0 + a1) + a2) + a3) without its temporaries."""
+    half = np.add(stack[0], stack[1])
+    for a in stack[2:]:
+        half += a
+    half *= np.float32(0.25)
+    return half
+
+
 def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, common_sigma: float,
                        offset_sigma: float, residual_sigma: float, eps: float,
                        out: np.ndarray | None = None) -> np.ndarray:
@@ -209,12 +218,25 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
     polcam.errors.MethodError
         For a mono layout.
     """
+    return shared_ratio_from_half(img, _quarter_sum(stack), lay, common_sigma=common_sigma,
+                                  offset_sigma=offset_sigma, residual_sigma=residual_sigma, eps=eps, out=out)
+
+
+def shared_ratio_from_half(img: np.ndarray, half: np.ndarray, lay: Layout, *, common_sigma: float,
+                           offset_sigma: float, residual_sigma: float, eps: float,
+                           out: np.ndarray | None = None) -> np.ndarray:
+    """:func:`shared_ratio_stage` with its guide given.
+
+    ``half`` is (H, W, 3) float32, ``S0 / 2`` of each colour; it is overwritten (it becomes the
+    ratios' clipped, offset denominator).  ``out``, or a new (4, H, W, 3) float32 array, receives
+    the result, which is returned."""
     if not lay.is_color:
         raise MethodError(f"shared-ratio stage: layout {lay.name} is mono, expected a colour layout")
     h, w = img.shape
-    channels = stack.shape[-1]
+    if h % 2 or w % 2:
+        raise MethodError(f"shared-ratio stage: mosaic of {w}x{h} pixels, expected even dimensions")
+    channels = half.shape[-1]
     period = lay.period
-    half = stack.sum(axis=0) * np.float32(0.25)  # S0 / 2 per channel, (H, W, C)
     own = np.empty((h, w), np.float32)  # S0 / 2 of each pixel's own colour
     for c in range(channels):
         for k in range(4):
@@ -223,12 +245,15 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
     e = np.float32(eps * max(float(np.mean(img, dtype=np.float64)), 1e-6))
     # the true ratio I / (S0 / 2) = 1 + DoLP cos(...) lies in [0, 2]; the clip keeps a poor
     # first-stage S0 (near 0 or negative on aliased detail) from blowing it up
-    val = np.clip(img / (np.maximum(own, 0) + e), 0, 2)
-    base = np.maximum(half, 0) + e  # (H, W, C)
+    np.maximum(own, 0, out=own)
+    own += e
+    val = np.divide(img, own, out=own)
+    np.clip(val, 0, 2, out=val)
+    base = np.maximum(half, 0, out=half)
+    base += e  # (H, W, C)
     if out is None:
-        out = np.empty_like(stack)
-    hh, ww = -(-h // 2), -(-w // 2)
-    local = threading.local()  # one ratio buffer per pool thread, reused by its jobs
+        out = np.empty((4, h, w, channels), np.float32)
+    hh = h // 2
 
     def job(k: int) -> None:
         lattices = [sublattices(lay, k, c) for c in range(channels)]
@@ -251,17 +276,19 @@ def shared_ratio_stage(img: np.ndarray, stack: np.ndarray, lay: Layout, *, commo
         # step 2 at the samples, step 3 there too; then one full-resolution filter per colour:
         # q_c = T(u + R_c) = U + T(R_c), T the shared ratio's filter (R_c smooth: T(R_c) ~ R_c)
         resid = sub - _filter_at_samples(u, 2, common_sigma)
-        # the ratios of every colour at every pixel, assembled phase by phase in pixel order
-        q = getattr(local, "q", None)
-        if q is None:
-            q = local.q = np.empty((hh, 2, ww, 2, channels), np.float32)
+        # the ratios of every colour at every pixel, phase by phase
+        phases: dict[tuple[int, int], list[np.ndarray]] = {}
         for c in range(channels):
             r_c = lattice_smooth(resid, sub_lat[c], 2, residual_sigma / 2)
             r_c += u
             for y0, x0, values in _phases(r_c, (py, px), 2, common_sigma, h, w):
-                q[:values.shape[0], y0, :values.shape[1], x0, c] = values
+                phases.setdefault((y0, x0), []).append(values)
         est = out[k]
-        np.multiply(q.reshape(2 * hh, 2 * ww, channels)[:h, :w], base, out=est)
+        # each row phase y0 of the output is whole rows: its two column phases' colours
+        # interleaved in pixel order (one cv2.merge), times the guide's rows
+        for y0 in range(2):
+            row = cv2.merge(phases[(y0, 0)] + phases[(y0, 1)]).reshape(hh, w, channels)
+            np.multiply(row, base[y0::2], out=est[y0::2])
         for c, lat in enumerate(lattices):
             for y0, x0 in lat:  # own samples kept
                 est[y0::period, x0::period, c] = img[y0::period, x0::period]

@@ -57,7 +57,7 @@ from polcam.demosaicing._lattice import bilinear_cells, normconv, run_jobs, subl
 from polcam.demosaicing._lattice import gauss_kernel as _gauss
 from polcam.demosaicing._lattice import tent_kernel as _tent_kernel
 from polcam.demosaicing._registry import register
-from polcam.demosaicing._shared_ratio import shared_ratio_stage
+from polcam.demosaicing._shared_ratio import shared_ratio_from_half
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 
@@ -250,7 +250,8 @@ def _mirror(t: np.ndarray, n: int, p: int) -> np.ndarray:
     raise AssertionError("mirror did not converge")  # pragma: no cover
 
 
-def apply_bank(img: np.ndarray, weights: np.ndarray, shift: tuple[int, int], channels: int) -> np.ndarray:
+def apply_bank(img: np.ndarray, weights: np.ndarray, shift: tuple[int, int], channels: int, *,
+               guide: bool = False) -> np.ndarray:
     """Run a filter bank on a mosaic in a canonical layout (up to the phase ``shift``).
 
     Parameters
@@ -258,16 +259,21 @@ def apply_bank(img: np.ndarray, weights: np.ndarray, shift: tuple[int, int], cha
     img
         (H, W) float32 mosaic; pixel (y, x) is canonical class ((y + sy) % 4, (x + sx) % 4).
     weights
-        (144, 4 * 16 * channels) float32, outputs in (angle, y in block, x in block, colour) order.
+        (144, n * 16 * channels) float32, outputs in (angle, y in block, x in block, colour) order
+        (n angles, 4 for the shipped banks).
     shift
         (sy, sx).
     channels
         3 for colour, 1 for mono.
+    guide
+        Return only ``S0 / 2`` per channel, ``(((I0 + I1) + I2) + I3) / 4`` of the bank's four
+        angles (what ``stack.sum(axis=0) / 4`` of the full result gives, bit for bit), without
+        the four angles' full-size images.
 
     Returns
     -------
     numpy.ndarray
-        (4, H, W, channels) float32.
+        (n, H, W, channels) float32, (1, H, W, channels) with ``guide``.
     """
     h, w = img.shape
     sy, sx = shift
@@ -277,18 +283,27 @@ def apply_bank(img: np.ndarray, weights: np.ndarray, shift: tuple[int, int], cha
     cols = _mirror(np.arange((wb + 2) * BLOCK) - BLOCK - sx, w, BLOCK)
     padded = img[np.ix_(rows, cols)]
     blocks = to_blocks(padded)
-    out = np.empty((4, hb * BLOCK, wb * BLOCK, channels), np.float32)
-    jobs = [lambda r0=r0: _job(blocks, weights, out, r0, min(hb, r0 + _ROWS_PER_JOB), wb, channels)
+    n = 1 if guide else weights.shape[1] // (BLOCK * BLOCK * channels)
+    out = np.empty((n, hb * BLOCK, wb * BLOCK, channels), np.float32)
+    jobs = [lambda r0=r0: _job(blocks, weights, out, r0, min(hb, r0 + _ROWS_PER_JOB), wb, channels, guide)
             for r0 in range(0, hb, _ROWS_PER_JOB)]
     run_jobs(jobs)
     return out[:, sy:sy + h, sx:sx + w]
 
 
 def _job(blocks: np.ndarray, weights: np.ndarray, out: np.ndarray, r0: int, r1: int, wb: int,
-         channels: int) -> None:
+         channels: int, guide: bool) -> None:
     feats = block_features(blocks, r0, r1).reshape(-1, weights.shape[0])
-    y = (feats @ weights).reshape(r1 - r0, wb, 4, BLOCK, BLOCK, channels)  # one 2-D GEMM
-    for k in range(4):
+    n = weights.shape[1] // (BLOCK * BLOCK * channels)
+    y = (feats @ weights).reshape(r1 - r0, wb, n, BLOCK, BLOCK, channels)  # one 2-D GEMM
+    if guide:  # S0 / 2: the angles summed in the order of stack.sum(axis=0)
+        half = np.add(y[:, :, 0], y[:, :, 1])
+        for k in range(2, n):
+            half += y[:, :, k]
+        half *= np.float32(0.25)
+        y = half[:, :, None]
+        n = 1
+    for k in range(n):
         dst = out[k, r0 * BLOCK:r1 * BLOCK].reshape(r1 - r0, BLOCK, wb, BLOCK, channels)
         dst[...] = y[:, :, k].transpose(0, 2, 1, 3, 4)
 
@@ -416,17 +431,21 @@ def run_lmmse(img: np.ndarray, lay: Layout, *, weights: dict[str, np.ndarray],
     p = plan(lay, h, w)
     raw = np.ascontiguousarray(_transform(img, p.transform))
     channels = 3 if lay.is_color else 1
-    canon = apply_bank(raw, np.ascontiguousarray(weights[p.key], dtype=np.float32), p.shift, channels)
+    bank = np.ascontiguousarray(weights[p.key], dtype=np.float32)
+    mode = str(params["color_stage" if lay.is_color else "mono_stage"])
+    if mode == "shared-ratio":
+        # the stage reads the first stage only through S0 / 2 per colour: the bank of that alone
+        half = apply_bank(raw, bank, p.shift, channels, guide=True)
+        half = np.ascontiguousarray(_untransform(half, p.transform)[0])
+        return shared_ratio_from_half(img, half, lay, common_sigma=float(params["common_sigma"]),
+                                      offset_sigma=float(params["offset_sigma"]),
+                                      residual_sigma=float(params["residual_sigma"]), eps=float(params["ratio_eps"]),
+                                      out=np.empty((4, h, w, channels), np.float32))
+    canon = apply_bank(raw, bank, p.shift, channels)
     if p.relabel != (0, 1, 2, 3):
         canon = canon[list(p.relabel)]
     stack = np.ascontiguousarray(_untransform(canon, p.transform))
-    mode = str(params["color_stage" if lay.is_color else "mono_stage"])
-    if mode == "shared-ratio":
-        stack = shared_ratio_stage(img, stack, lay, common_sigma=float(params["common_sigma"]),
-                                   offset_sigma=float(params["offset_sigma"]),
-                                   residual_sigma=float(params["residual_sigma"]), eps=float(params["ratio_eps"]),
-                                   out=stack)  # in place: the first stage is not needed after it
-    elif mode != "none":
+    if mode != "none":
         kernel = str(params.get("kernel", "gauss"))
         sigma = float(params["tent_sigma"] if kernel == "tent" else params["sigma" if lay.is_color else "mono_sigma"])
         stack = second_stage(img, stack, lay, mode=mode, sigma=sigma, eps=float(params["ratio_eps"]),

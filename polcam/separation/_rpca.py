@@ -8,6 +8,7 @@ case on pixel-major (k, n) matrices, iterated block by block
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -189,11 +190,12 @@ def rpca_ialm(m: np.ndarray, *, lam: float | None = None,
 
 
 def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, g: np.ndarray, *,
-                     lam: float, beta: float, tol: float, max_iter: int, rho: float = 1.5
-                     ) -> tuple[np.ndarray, int, bool]:
+                     lam: float, beta: float, tol: float, max_iter: int, rho: float = 1.5,
+                     pool: Executor | None = None, parts: int = 1) -> tuple[np.ndarray, int, bool]:
     """``rpca_ialm(mt.T, lam=lam, lower=lower_t.T, upper=mt.T, direction=g, prior=prior_t.T,
     beta=beta, ...)``'s sparse part, transposed, for matrices given as C-contiguous (k, n)
-    with n > k: the same arithmetic without transposing copies (wen21's clusters).
+    with n > k: the same arithmetic without transposing copies (wen21's clusters).  ``pool``
+    and ``parts``: the iterations' blocks on threads (:func:`_ialm_direction`; same result).
 
     Returns
     -------
@@ -222,7 +224,7 @@ def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, 
     mu = 1.25 / norm2
     _, sp, it, converged = _ialm_direction(x, y, g, s_lo, s_hi, p, lam=float(lam), beta=beta, mu=mu,
                                            mu_max=mu * 1e7, rho=float(rho), tol=float(tol),
-                                           max_iter=int(max_iter), norm_f=norm_f)
+                                           max_iter=int(max_iter), norm_f=norm_f, pool=pool, parts=parts)
     sp *= peak
     return sp, it, converged
 
@@ -232,7 +234,8 @@ _IALM_BLOCK = 8192  # pixels per block of the fused iteration: its dozen (n2, bl
 
 def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarray, s_hi: np.ndarray,
                     p: np.ndarray | None, *, lam: float, beta: float, mu: float, mu_max: float,
-                    rho: float, tol: float, max_iter: int, norm_f: float
+                    rho: float, tol: float, max_iter: int, norm_f: float,
+                    pool: Executor | None = None, parts: int = 1
                     ) -> tuple[np.ndarray, np.ndarray, int, bool]:
     """The iterations of :func:`rpca_ialm` with a direction, for a wide (n2, n) matrix of few rows.
 
@@ -241,6 +244,10 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
     singular value thresholding needs is accumulated in the pass that
     updates ``S`` and ``Y``, and ``S`` is kept as its row scales ``sc``
     (``S = g sc``).  ``y`` is updated in place.
+
+    With a ``pool``, each iteration's blocks run as ``parts`` contiguous runs on it; every
+    block's share of the Gram matrix and of the residual is kept and the shares are summed in
+    block order, so the result is the same, bit for bit, for any ``pool`` and ``parts``.
 
     Returns
     -------
@@ -256,7 +263,10 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
     sc = np.zeros(n)
     low = np.empty_like(x)
     blocks = [(a, min(a + _IALM_BLOCK, n)) for a in range(0, n, _IALM_BLOCK)]
-    buf_gs, buf_yi, buf_arg = (np.empty((k, min(_IALM_BLOCK, n))) for _ in range(3))
+    parts = max(1, min(parts if pool is not None else 1, len(blocks)))
+    runs = [blocks[len(blocks) * i // parts:len(blocks) * (i + 1) // parts] for i in range(parts)]
+    width = min(_IALM_BLOCK, n)
+    bufs = [tuple(np.empty((k, width)) for _ in range(3)) for _ in runs]
     # the Gram matrix of the first thresholding's argument x - S + Y / mu (S = 0)
     inv = 1.0 / mu
     gram = np.zeros((k, k))
@@ -279,37 +289,52 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
         t = lam / (mu + beta)
         mu_next = min(mu * rho, mu_max)
         inv_next = 1.0 / mu_next
+
+        def run(r: int, inv: float = inv, proj: np.ndarray = proj, c1: float = c1, c2: float = c2,
+                t: float = t, mu: float = mu, inv_next: float = inv_next) -> list[tuple[np.ndarray, float]]:
+            buf_gs, buf_yi, buf_arg = bufs[r]
+            shares = []
+            for a, b in runs[r]:
+                xb, yb = x[:, a:b], y[:, a:b]
+                gs = np.multiply(gb, sc[None, a:b], out=buf_gs[:, :b - a])
+                yi = np.multiply(yb, inv, out=buf_yi[:, :b - a])
+                arg = np.subtract(xb, gs, out=buf_arg[:, :b - a])
+                arg += yi
+                lb = np.matmul(proj, arg, out=low[:, a:b])
+                d = np.subtract(xb, lb, out=arg)
+                vv = np.add(d, yi, out=yi)
+                if beta > 0:
+                    vv *= c1
+                    if p is not None:
+                        vv += np.multiply(p[:, a:b], c2, out=gs)
+                q = g @ vv
+                q -= t * gsum
+                q /= gg
+                np.maximum(q, s_lo[a:b], out=q)  # clip to [s_lo, s_hi] (s_lo <= s_hi)
+                sc[a:b] = np.minimum(q, s_hi[a:b], out=q)
+                gs = np.multiply(gb, sc[None, a:b], out=gs)
+                r_ = d
+                r_ -= gs
+                rr_b = float(np.einsum("ij,ij->", r_, r_))
+                r_ *= mu
+                yb += r_
+                # the next thresholding's argument x - S + Y / mu_next, and its Gram matrix
+                nxt = np.multiply(yb, inv_next, out=vv)
+                nxt += xb
+                nxt -= gs
+                shares.append((nxt @ nxt.T, rr_b))
+            return shares
+
+        if parts > 1:
+            assert pool is not None
+            shares = [sh for part in pool.map(run, range(parts)) for sh in part]
+        else:
+            shares = run(0)
         gram = np.zeros((k, k))
         rr = 0.0
-        for a, b in blocks:
-            xb, yb = x[:, a:b], y[:, a:b]
-            gs = np.multiply(gb, sc[None, a:b], out=buf_gs[:, :b - a])
-            yi = np.multiply(yb, inv, out=buf_yi[:, :b - a])
-            arg = np.subtract(xb, gs, out=buf_arg[:, :b - a])
-            arg += yi
-            lb = np.matmul(proj, arg, out=low[:, a:b])
-            d = np.subtract(xb, lb, out=arg)
-            vv = np.add(d, yi, out=yi)
-            if beta > 0:
-                vv *= c1
-                if p is not None:
-                    vv += np.multiply(p[:, a:b], c2, out=gs)
-            q = g @ vv
-            q -= t * gsum
-            q /= gg
-            np.maximum(q, s_lo[a:b], out=q)  # clip to [s_lo, s_hi] (s_lo <= s_hi)
-            sc[a:b] = np.minimum(q, s_hi[a:b], out=q)
-            gs = np.multiply(gb, sc[None, a:b], out=gs)
-            r = d
-            r -= gs
-            rr += float(np.einsum("ij,ij->", r, r))
-            r *= mu
-            yb += r
-            # the next thresholding's argument x - S + Y / mu_next, and its Gram matrix
-            nxt = np.multiply(yb, inv_next, out=vv)
-            nxt += xb
-            nxt -= gs
-            gram += nxt @ nxt.T
+        for gram_b, rr_b in shares:  # in block order, whatever ran them
+            gram += gram_b
+            rr += rr_b
         mu = mu_next
         if np.sqrt(rr) / norm_f < tol:
             converged = True

@@ -355,7 +355,7 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
     ic_t, isv_t, raw_t = (np.take(a.T, order, axis=1) for a in (ic, isv, raw_s))
     diffuse_t = np.empty_like(ic_t)
 
-    def cluster(k: int) -> tuple[int, bool]:
+    def cluster(k: int, pool: ThreadPoolExecutor | None = None, parts: int = 1) -> tuple[int, bool]:
         a, b = int(bounds[k]), int(bounds[k + 1])
         if b == a:
             return 0, True
@@ -364,7 +364,8 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
         if b - a > 3:  # a wide matrix: the transposed fast path of rpca_ialm
             m = ic_t[:, a:b]
             sp, its, conv = _rpca_direction_t(m, isv_t[:, a:b], raw_t[:, a:b], gamma,
-                                              lam=lam, beta=w, tol=float(tol), max_iter=int(max_iter))
+                                              lam=lam, beta=w, tol=float(tol), max_iter=int(max_iter),
+                                              pool=pool, parts=parts)
             np.subtract(m, sp, out=diffuse_t[:, a:b])
             return its, conv
         m = ic_t[:, a:b].T
@@ -373,12 +374,15 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
         diffuse_t[:, a:b] = (m - res.sparse).T
         return res.iterations, res.converged
 
-    # clusters are independent: largest first on a few threads (numpy releases the GIL)
+    # clusters are independent (numpy releases the GIL): a large one at a time with its pixel
+    # blocks shared by the threads, then the small ones side by side, one per thread
     ks = sorted(range(len(bounds) - 1), key=lambda k: bounds[k] - bounds[k + 1])
-    threads = min(default_workers(4), len(ks)) if ic.shape[0] >= _THREADED_MIN else 1
+    threads = default_workers(4) if ic.shape[0] >= _THREADED_MIN else 1
     if threads > 1:
+        large = [k for k in ks if bounds[k + 1] - bounds[k] >= _THREADED_MIN]
         with ThreadPoolExecutor(max_workers=threads) as pool:
-            results = list(pool.map(cluster, ks))
+            results = [cluster(k, pool, threads) for k in large]
+            results += pool.map(cluster, ks[len(large):])
     else:
         results = [cluster(k) for k in ks]
     for its, conv in results:

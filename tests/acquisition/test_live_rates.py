@@ -134,3 +134,30 @@ def test_the_separation_thread_runs_below_the_maps():
         assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == base
     finally:
         live.close()
+
+
+@pytest.mark.parametrize("method", [None, "wen21"])
+def test_maps_leave_room_for_the_layers(method):
+    """With a separation thread the maps start at most MAPS_FPS_WITH_LAYERS frames a second, however
+    fast frames come; without one they take every frame they can."""
+    from polcam.acquisition.live import MAPS_FPS_WITH_LAYERS, LiveProcessor
+
+    src = read_frame(FIXTURES / "synthetic_bunny5.png")
+    small = Frame(mosaic=np.ascontiguousarray(src.mosaic[:64, :64]), layout=src.layout, bit_depth=src.bit_depth,
+                  black_level=src.black_level, white_level=src.white_level)
+    live = LiveProcessor(src.layout, separate=method, workers=2)
+    try:
+        t0 = time.monotonic()
+        i = 0
+        while time.monotonic() - t0 < 1.5:  # frames offered far faster than 25 a second
+            live.offer(i, small)
+            i += 1
+            time.sleep(0.002)
+    finally:
+        live.close(finish=False)
+    elapsed = time.monotonic() - t0
+    if method is None:
+        assert live.processed > MAPS_FPS_WITH_LAYERS * elapsed + 2  # 64 x 64 maps: well over 25 fps
+    else:
+        assert 3 <= live.processed <= MAPS_FPS_WITH_LAYERS * elapsed + 2
+        assert live.separations >= 1

@@ -96,3 +96,50 @@ def test_device_rows_name_the_device():
     else:
         assert row.device == "cpu" and np.isnan(row.device_peak_mb)
         assert "+ GPU" not in format_markdown(rows)
+
+
+def test_cuda_device_is_named_or_refused_clearly():
+    """``--device cuda`` prints the GPU's model first; without one the command fails saying so."""
+    import subprocess
+    import sys
+
+    try:
+        import torch
+
+        gpu = torch.cuda.is_available()
+    except ImportError:
+        gpu = False
+    cmd = [sys.executable, "-m", "polcam", "bench", "speed", "--device", "cuda", "--sizes", "16",
+           "--exact-max", "0", "--no-frame"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False)
+    if gpu:
+        assert res.returncode == 0, res.stderr
+        assert res.stdout.splitlines()[0] == f"device cuda: {torch.cuda.get_device_name()}"
+    else:
+        assert res.returncode != 0
+        assert "no GPU available" in res.stderr or "no CUDA GPU available" in res.stderr, res.stderr
+        assert "Traceback" not in res.stderr
+
+
+def test_targets_table_says_which_targets_are_met():
+    from polcam.bench.targets import TargetRow, format_markdown
+
+    rows = [TargetRow("maps, mono: polcam bilinear vs polanalyser", 2.5, "x", 2.0),
+            TargetRow("separation, wen21", 0.75, "s", 0.6)]
+    assert [r.met for r in rows] == [True, False]
+    table = format_markdown(rows)
+    assert "| maps, mono: polcam bilinear vs polanalyser | 2.50x | >= 2x | yes |" in table
+    assert "| separation, wen21 | 0.750 s | <= 0.6 s | no |" in table
+
+
+@pytest.mark.slow
+def test_targets_run_prints_every_figure(capsys):
+    pytest.importorskip("polanalyser")
+    assert main(["--repeat", "1"]) == 0
+    out = capsys.readouterr().out
+    for figure in ("maps, mono: polcam bilinear vs polanalyser", "maps, mono: polcam default (eari) vs polanalyser",
+                   "maps, colour: polcam bilinear vs polanalyser",
+                   "maps, colour: polcam default (lmmse) vs polanalyser",
+                   "separation, wen21, 1224 x 1024 colour", "separation, colour default (wen21), 1224 x 1024",
+                   "raw 2448 x 2048 colour -> maps and layers (wen21, cell)"):
+        assert f"| {figure} |" in out, figure

@@ -173,3 +173,9 @@ def test_every_colour_layout_keeps_its_own_samples() -> None:
         lay = Layout(perm, bayer)
         out = shared_ratio_stage(raw, guide, lay, **PARAMS)
         np.testing.assert_array_equal(mosaic_stack(out, layout=lay), raw)
+
+
+def test_odd_dimensions_are_refused() -> None:
+    raw = np.full((18, 17), 0.5, np.float32)
+    with pytest.raises(MethodError, match="17x18 pixels, expected even"):
+        shared_ratio_stage(raw, np.full((4, 18, 17, 3), 0.5, np.float32), MYR, **PARAMS)

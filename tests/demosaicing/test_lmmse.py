@@ -239,3 +239,17 @@ def test_beats_bilinear_where_colours_differ_in_polarization() -> None:
             psnr[method] = 10 * np.log10(1 / mse)
         gains.append(psnr["lmmse"] - psnr["bilinear"])
     assert float(np.mean(gains)) >= 1.0, gains
+
+
+def test_bank_guide_is_the_angle_mean_of_the_bank_bit_for_bit() -> None:
+    """``apply_bank(guide=True)`` is ``stack.sum(axis=0) / 4`` of the full bank's result."""
+    rng = np.random.default_rng(8)
+    raw = rng.uniform(0.0, 1.0, size=(36, 44)).astype(np.float32)
+    for lay in (MYR, MZR):
+        channels = 3 if lay.is_color else 1
+        p = lm.plan(lay, *raw.shape)
+        img = np.ascontiguousarray(lm._transform(raw, p.transform))
+        full = lm.apply_bank(img, lm._weights()[p.key], p.shift, channels)
+        guide = lm.apply_bank(img, lm._weights()[p.key], p.shift, channels, guide=True)
+        assert guide.shape == (1, *full.shape[1:])
+        np.testing.assert_array_equal(guide[0], full.sum(axis=0) * np.float32(0.25))
