@@ -233,7 +233,7 @@ class LiveProcessor:
         self._sep_wake = threading.Condition(self._sep_lock)
         self._sep_pending: tuple[int, Frame] | None = None
         # the earliest start of the next frame's maps (see MAPS_FPS_WITH_LAYERS)
-        self._maps_interval = 1.0 / MAPS_FPS_WITH_LAYERS if separate not in (None, "imin") else 0.0
+        self._maps_interval = 1.0 / MAPS_FPS_WITH_LAYERS if self.method not in (None, "imin") else 0.0
         self._next_maps = 0.0
         self.error: BaseException | None = None
         self._threads = [threading.Thread(target=self._run, name=f"live-{i}", daemon=True)
