@@ -401,23 +401,3 @@ def _plot(scores: Sequence[Score], stats: dict[str, dict[str, float]], path: Pat
         fig.savefig(tmp, format="png")
     plt.close(fig)
     return path
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m polcam.bench.quality``."""
-    p = argparse.ArgumentParser(prog="polcam bench quality", description=__doc__.splitlines()[0])
-    p.add_argument("--size", type=int, default=128)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--scenes", nargs="+")
-    p.add_argument("--methods", nargs="+")
-    p.add_argument("--out", type=Path, default=Path("bench-output/quality"))
-    a = p.parse_args(argv)
-    scores, stats = run(scenes=a.scenes, methods=a.methods, size=a.size, seed=a.seed)
-    print(format_table(scores))
-    for f in write_outputs(scores, stats, a.out):
-        print(f"wrote {f}")
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -62,7 +62,7 @@ from polcam.errors import FrameReadError, PolcamError
 from polcam.io.atomic import atomic_path, atomic_write
 
 __all__ = ["RealScore", "find_scenes", "load_stack", "prepare", "relight", "camera_stack", "achromatic_mask",
-           "metrics", "run", "format_table", "write_outputs", "add_parser", "run_args"]
+           "metrics", "run", "format_table", "write_outputs", "default_data"]
 
 #: Threshold of the Imin checks (one 8-bit step is 1/255).
 OVER_IMIN = 3.0 / 255.0
@@ -405,83 +405,10 @@ def write_outputs(scores: Sequence[RealScore], layers: dict[str, dict[str, np.nd
     return written
 
 
-def _default_data() -> Path | None:
+def default_data() -> Path | None:
+    """The shared data folder holding the real stacks (``../shared/data`` from the working folder or
+    the checkout), or None when neither holds one."""
     for cand in (Path("../shared/data"), Path(__file__).resolve().parents[2].parent / "shared" / "data"):
         if find_scenes(cand):
             return cand
     return None
-
-
-def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    """Add ``real`` to ``polcam bench``'s sub-commands."""
-    p = subparsers.add_parser(
-        "real", help="every colour separation method on real colour stacks",
-        description="Every colour separation method on real full-resolution colour polarization stacks "
-                    "(mosaicked in the IMX250MYR layout, demosaiced, separated), judged by physics: "
-                    "diffuse above Imin, specular colour spread, brightest 1 % removed, achromatic "
-                    "unpolarized pixels kept, seconds; a Markdown table and a montage per scene.")
-    p.add_argument("--data", type=Path, help="folder with real-color-stack/ and real-color-stacks/ "
-                                             "(default ../shared/data when present)")
-    p.add_argument("--methods", nargs="+", help="only these methods (default: all)")
-    p.add_argument("--scenes", nargs="+", help="only these scenes (default: all found)")
-    p.add_argument("--crop", type=int, nargs=4, metavar=("Y", "X", "H", "W"),
-                   help="crop the true stacks to this window first")
-    p.add_argument("--scale", type=float, help="then resize by this factor in (0, 1] (default 1; 0.5 with --relit)")
-    p.add_argument("--exposure", type=float, default=1.0,
-                   help="relight: multiply the true stacks by this gain, then clip at 1 (default 1)")
-    p.add_argument("--light", type=float, nargs=3, default=(1.0, 1.0, 1.0), metavar=("R", "G", "B"),
-                   help="relight: the light's colour against the recording's white balance (default 1 1 1)")
-    p.add_argument("--relit", action="store_true",
-                   help="the standing table: every stack under every relit variant (recorded, overexposed, "
-                        "tinted, tinted+overexposed; polcam.bench.relit) with the no-harm measures: matte "
-                        "achromatic kept, brightest 1 %% removed, specular spread, structure invented in "
-                        "clipped regions")
-    p.add_argument("--variants", nargs="+", help="with --relit: only these variants (default: all)")
-    p.add_argument("--mono", action="store_true",
-                   help="with --relit: the mono camera (the stacks' luminance through an IMX250MZR mosaic) "
-                        "and the methods that take mono stacks")
-    p.add_argument("--out", type=Path, default=Path("bench-output/real"), help="output folder "
-                                                                              "(default bench-output/real)")
-    p.set_defaults(bench_run=run_args)
-    return p
-
-
-def run_args(args: argparse.Namespace) -> int:
-    """Run ``polcam bench real`` from parsed arguments."""
-    import sys
-
-    data = args.data if args.data is not None else _default_data()
-    if data is None or not find_scenes(data):
-        print(f"error: --data {data}: no real colour stack found (expected real-color-stack/ or "
-              "real-color-stacks/<scene>/ with 0/45/90/135 PNGs)", file=sys.stderr)
-        return 2
-    if args.relit:   # polcam.commands.bench sends --relit to polcam.bench.relit.run_args
-        print("error: --relit is run by `polcam bench real --relit` (polcam.bench.relit)", file=sys.stderr)
-        return 2
-    if args.mono or args.variants:
-        print("error: --mono and --variants need --relit", file=sys.stderr)
-        return 2
-    try:
-        scores, layers = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
-                             scale=1.0 if args.scale is None else args.scale,
-                             exposure=args.exposure, light=args.light)
-    except PolcamError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(format_table(scores))
-    for f in write_outputs(scores, layers, args.out):
-        print(f"wrote {f}")
-    return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m polcam.bench.real``."""
-    p = argparse.ArgumentParser(prog="polcam bench")
-    add_parser(p.add_subparsers(dest="bench", required=True))
-    import sys
-
-    return run_args(p.parse_args(["real", *(sys.argv[1:] if argv is None else argv)]))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -52,7 +52,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["VARIANTS", "CLIP_LEVEL", "MIN_REGION", "RelitScore", "matte_mask", "invented_structure", "run", "format_table",
-           "summary", "run_args"]
+           "summary"]
 
 #: The relit variants: name -> (exposure, light RGB).  ``overexposed``: 1.5 times the light, what
 #: was above 2/3 of the white level clips; ``tinted``: the light a raw IMX250MYR frame sees
@@ -335,39 +335,3 @@ def summary(scores: Sequence[RelitScore]) -> dict[str, dict[str, float]]:
             "invented_max": float(max(inv)) if inv else 0.0,
         }
     return out
-
-
-def run_args(args: argparse.Namespace) -> int:
-    """Run ``polcam bench real --relit`` from parsed arguments (the parser is ``polcam.bench.real``'s)."""
-    import json
-    import sys
-
-    from polcam._jsonable import jsonable
-    from polcam.bench.real import _default_data, find_scenes
-    from polcam.errors import PolcamError
-    from polcam.io.atomic import atomic_write
-
-    data = args.data if args.data is not None else _default_data()
-    if data is None or not find_scenes(data):
-        print(f"error: --data {data}: no real colour stack found", file=sys.stderr)
-        return 2
-    if args.exposure != 1.0 or tuple(args.light) != (1.0, 1.0, 1.0):
-        print("error: --relit runs its own variants; expected no --exposure or --light", file=sys.stderr)
-        return 2
-    try:
-        scores = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
-                     scale=0.5 if args.scale is None else args.scale, mono=args.mono, variants=args.variants)
-    except PolcamError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    table = format_table(scores)
-    print(table)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out / "relit.md", "w") as fh:
-        fh.write(table + "\n")
-    with atomic_write(out / "relit.json", "w") as fh:
-        fh.write(json.dumps(jsonable({"rows": [vars(s) for s in scores], "summary": summary(scores)}),
-                            indent=1) + "\n")
-    print(f"wrote {out / 'relit.md'}\nwrote {out / 'relit.json'}")
-    return 0

@@ -27,8 +27,7 @@ as quoted in ``shen2013/SOURCES.md`` of the project data; published figures,
 kept here as an independent reference.  The deviation column is the mean over
 the four images of ``|PSNR - reference PSNR|``.
 
-Run as ``python -m polcam.bench.sihr --data DIR [--methods yang10 shen13 ...]``
-(or ``polcam bench sihr --data DIR``).
+Run as ``polcam bench sihr --data DIR [--methods yang10 shen13 ...]``.
 """
 
 from __future__ import annotations
@@ -55,7 +54,6 @@ __all__ = [
     "default_methods",
     "format_table",
     "load_pair",
-    "main",
     "mean_abs_deviation",
     "psnr",
     "run",
@@ -323,28 +321,3 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
             f"{_f(r.get('reference_seconds'), 'g')} |"
         )
     return "\n".join(lines) + "\n"
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``python -m polcam.bench.sihr --data DIR [--methods ...]``."""
-    ap = argparse.ArgumentParser(prog="python -m polcam.bench.sihr", description=__doc__.splitlines()[0])
-    ap.add_argument("--data", required=True, type=Path,
-                    help="folder with animals.png, animals_gt.png, ... (or its parent holding shen2013/)")
-    ap.add_argument("--methods", nargs="+", default=None,
-                    help="method names (space or comma separated); default: every registered method "
-                         "of the reference table, plus yamamoto19")
-    args = ap.parse_args(argv)
-    methods = None
-    if args.methods:
-        methods = [m for item in args.methods for m in item.split(",") if m]
-    try:
-        rows = run(args.data, methods)
-    except (MethodError, FrameReadError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    sys.stdout.write(format_table(rows))
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

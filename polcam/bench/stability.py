@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["StabilityRow", "perturbed", "run", "format_markdown", "write_outputs", "add_arguments", "run_args"]
+__all__ = ["StabilityRow", "perturbed", "run", "format_markdown", "write_outputs"]
 
 
 @dataclass(frozen=True)
@@ -178,32 +178,3 @@ def write_outputs(rows: Sequence[StabilityRow], out_dir: Path) -> list[Path]:
     with atomic_write(out_dir / "table.md", "w") as fh:
         fh.write(format_markdown(rows) + "\n")
     return [out_dir / "stability.csv", out_dir / "table.md"]
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The options of ``polcam bench stability``."""
-    p.add_argument("--set", default="all", choices=("paper", "stress", "all"), help="scene set (default all)")
-    p.add_argument("--scenes", nargs="+", help="only these scenes")
-    p.add_argument("--methods", nargs="+", default=["polarized-residual", "imin"],
-                   help="methods (default polarized-residual imin)")
-    p.add_argument("--size", type=int, default=96, help="scene side in pixels (default 96)")
-    p.add_argument("--frames", type=int, default=6, help="noise seeds per scene for the flicker (default 6)")
-    p.add_argument("--rel", type=float, default=3e-7,
-                   help="relative deviation of the continuity's perturbation (default 3e-7)")
-    p.add_argument("--hold-illuminant", action="store_true",
-                   help="pass the first frame's illuminant estimate to the later frames (as polcam capture does)")
-    p.add_argument("--mono", action="store_true", help="the scenes' luminance (mono), for methods that take it")
-    p.add_argument("--out", type=Path, default=Path("bench-output") / "stability",
-                   help="output folder (default bench-output/stability)")
-
-
-def run_args(a: argparse.Namespace) -> int:
-    """Run ``polcam bench stability`` with parsed options; print the table and write the files."""
-    from polcam.bench.quality import scene_set
-
-    rows = run(scenes=a.scenes or scene_set(a.set), methods=a.methods, size=a.size, frames=a.frames,
-               rel=a.rel, hold_illuminant=a.hold_illuminant, mono=a.mono)
-    print(format_markdown(rows))
-    for f in write_outputs(rows, a.out):
-        print(f"wrote {f}")
-    return 0

@@ -6,7 +6,7 @@ options of ``polcam capture``); the frames stream into
 :func:`~polcam.calibration.calibrate_dark` /
 :func:`~polcam.calibration.calibrate_flat` /
 :func:`~polcam.calibration.calibrate_polarizer` one at a time
-(:mod:`polcam.calibration.frames` says how live frames are taken).
+(:mod:`polcam.acquisition.calibration_frames` says how live frames are taken).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from polcam.calibration.estimate import calibrate_dark, calibrate_flat, calibrate_polarizer, check_angles
-from polcam.calibration.frames import (
+from polcam.acquisition.calibration_frames import (
     ANGLE_KEY,
     FrameGrabber,
     angle_of,

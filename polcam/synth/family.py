@@ -12,7 +12,7 @@ of seeds (the ``validation`` split, fixed) and reported on another (the
 * **materials**: 1 to 4 per object, the object split into solid Voronoi
   cells (:class:`MaterialTexture`); each material is a public-domain
   photograph used as albedo (the ones the demosaicing trains on,
-  :mod:`polcam.demosaicing.photos`: linearised, projected along an axis,
+  :mod:`polcam.synth.photos`: linearised, projected along an axis,
   rescaled and sometimes desaturated), achromatic (grey to white), pale (a
   faint tint) or saturated;
 * **specular**: none on 15 % of scenes (matte), else Blinn-Phong strength
@@ -96,7 +96,7 @@ _HEADROOM = 64.0
 @lru_cache(maxsize=len(PHOTOS))
 def _photo(name: str) -> np.ndarray:
     """A photograph as linear RGB in [0, 1] (sRGB decoded), (H, W, 3) float32."""
-    from polcam.demosaicing.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo
+    from polcam.synth.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo
 
     assert name in TRAINING_PHOTOS + VALIDATION_PHOTOS
     c = load_photo(name).astype(np.float64)

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from polcam.calibration.apply import apply_calibration, correct_stack, effective_model, fill_defects
-from polcam.calibration.bench import _scene, make_calibration, stokes_errors
+from polcam.bench.calibration import _scene, make_calibration, stokes_errors
 from polcam.calibration.model import nominal_orientation
-from polcam.calibration.simulate import ImperfectSensor
+from polcam.synth.sensor import ImperfectSensor
 from polcam.calibration.store import Calibration, CalibrationError
 from polcam.demosaicing import demosaic
 from polcam.frame import Frame
