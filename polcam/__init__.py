@@ -7,8 +7,7 @@ The pipeline (docs/architecture.md): raw frame -> :func:`demosaic` -> stack
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
-
+from polcam._version import __version__
 from polcam.demosaicing import demosaic
 from polcam.errors import PolcamError
 from polcam.frame import Frame
@@ -40,11 +39,6 @@ def __getattr__(name: str):
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(__all__))
 
-
-try:
-    __version__ = version("polcam")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.0.0+unknown"
 
 __all__ = [
     "DEMOSAIC_METHODS",

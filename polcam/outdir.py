@@ -27,7 +27,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from polcam import __version__
+from polcam._version import __version__
 from polcam.errors import FrameWriteError, PolcamError
 from polcam.io.atomic import os_reason, probe_folder
 

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from polcam.bench.demosaic import quality
-from polcam.demosaicing._registry import demosaic, mosaic_stack
+from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.demosaicing.lmmse import LMMSE_PARAMS, run_lmmse, shipped_weights
 from polcam.demosaicing.lmmse_eari import BLEND_PARAMS, run_blend
 from polcam.synth.photos import VALIDATION_PHOTOS, photo_stack

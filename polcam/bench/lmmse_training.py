@@ -51,7 +51,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from polcam.demosaicing._registry import mosaic_stack
+from polcam.demosaicing import mosaic_stack
 from polcam.demosaicing.lmmse import (  # noqa: I001
     BLOCK,
     CANONICAL,

@@ -270,7 +270,7 @@ def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bun
     -------
     list of SpeedRow
     """
-    from polcam.separation._registry import method_spec
+    from polcam.separation import method_spec
 
     method_spec(method)                              # unknown names refused before any work
     fast_opts = {"solver": "fast", **(options or {})} if method == "tensor" else dict(options or {})

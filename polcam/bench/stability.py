@@ -64,14 +64,14 @@ class StabilityRow:
 def perturbed(stack: np.ndarray, rel: float, seed: int) -> np.ndarray:
     """``stack`` with every sample below the white level multiplied by ``1 + N(0, rel)`` (float32, same shape).
 
-    The white level is the one the separation methods treat as clipped (``_illuminant._SATURATED``):
+    The white level is the one the separation methods treat as clipped (``_illuminant.SATURATED``):
     a clipped sample stays as it is, as a real one does.
     """
-    from polcam.separation._illuminant import _SATURATED
+    from polcam.separation._illuminant import SATURATED
 
     s = np.asarray(stack, dtype=np.float32)
     noise = np.random.default_rng(seed).normal(0.0, rel, s.shape)
-    return np.where(s >= _SATURATED, s, s * (1.0 + noise)).astype(np.float32)
+    return np.where(s >= SATURATED, s, s * (1.0 + noise)).astype(np.float32)
 
 
 def _object(layer: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -47,7 +47,7 @@ import numpy as np
 from scipy import ndimage
 
 from polcam.calibration.model import model_from_coefficients, nominal_orientation
-from polcam.calibration.store import Calibration, CalibrationError, _now
+from polcam.calibration.store import Calibration, CalibrationError, utc_now
 from polcam.frame import Frame
 from polcam.mosaic import ANGLES, Layout, parse_layout
 
@@ -264,7 +264,7 @@ def _result(stats: _Stats, base: Calibration | None) -> Calibration:
     if base is not None:
         cal = base.copy()
         cal.source = None
-        cal.created = _now()
+        cal.created = utc_now()
         for key in ("camera_id", "roi", "reverse_x", "reverse_y"):
             if getattr(cal, key) is None and getattr(stats, key) is not None:
                 setattr(cal, key, getattr(stats, key))

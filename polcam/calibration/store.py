@@ -46,6 +46,7 @@ __all__ = [
     "CalibrationError",
     "load_calibration",
     "save_calibration",
+    "utc_now",
 ]
 
 #: Value of ``meta["format"]`` in every calibration file.
@@ -82,13 +83,14 @@ class CalibrationError(PolcamError):
     """A calibration that cannot be made, read or applied (bad frames, wrong file, mismatched camera)."""
 
 
-def _now() -> str:
+def utc_now() -> str:
+    """The time now in UTC, ISO 8601 to the second (a calibration's ``created``)."""
     return _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
 
 
 def _version() -> str:
     try:
-        from polcam import __version__
+        from polcam._version import __version__
 
         return str(__version__)
     except Exception:  # pragma: no cover - partial trees
@@ -135,7 +137,7 @@ class Calibration:
     reverse_y: bool | None = None
     maps: dict[str, np.ndarray] = field(default_factory=dict)
     stages: dict[str, dict[str, Any]] = field(default_factory=dict)
-    created: str = field(default_factory=_now)
+    created: str = field(default_factory=utc_now)
     polcam_version: str = field(default_factory=_version)
     source: str | None = None
     _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)

@@ -14,10 +14,10 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from polcam import __version__
-from polcam.commands._args import CommandParser, run_command
+from polcam._version import __version__
+from polcam.commands._args import CommandParser, parse_option, run_command
 
-__all__ = ["build_parser", "main", "reference_markdown", "run_command"]
+__all__ = ["build_parser", "main", "parse_option", "reference_markdown", "run_command"]
 
 
 def build_parser() -> argparse.ArgumentParser:

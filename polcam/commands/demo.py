@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from polcam import __version__
+from polcam._version import __version__
 from polcam.commands._args import default_methods_text
 
 __all__ = ["FIXTURES", "add_parser", "cmd_demo"]

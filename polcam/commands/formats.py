@@ -10,10 +10,10 @@ __all__ = ["add_parser", "cmd_formats"]
 
 def cmd_formats(args: argparse.Namespace) -> int:
     from polcam.errors import PixelFormatError
-    from polcam.mosaic import _VENDOR_ALIASES, LAYOUTS, PIXEL_FORMATS, _vendor_key
+    from polcam.mosaic import VENDOR_ALIASES, LAYOUTS, PIXEL_FORMATS, vendor_key
 
-    key = _vendor_key(args.vendor)
-    known = sorted({v for v, _ in PIXEL_FORMATS if v != "*"} | set(_VENDOR_ALIASES.values()))
+    key = vendor_key(args.vendor)
+    known = sorted({v for v, _ in PIXEL_FORMATS if v != "*"} | set(VENDOR_ALIASES.values()))
     if key is not None and key not in known:
         raise PixelFormatError(f"--vendor {args.vendor!r}: unknown vendor; known vendors: {', '.join(known)} "
                                "(or leave --vendor out for every format)")

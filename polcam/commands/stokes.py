@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from polcam import __version__
+from polcam._version import __version__
 from polcam.commands._args import add_max_pixels_argument
 from polcam.errors import PolcamError
 from polcam.sinks.files import FORMATS

@@ -48,7 +48,7 @@ TOLERANCE = 0.04
 #: Standard errors from white under which the polarized light's colour is noise: the camera's white
 #: balance is kept (:func:`estimate_illuminant`).
 WHITE_Z = 3.0
-_SATURATED = 0.98
+SATURATED = 0.98
 #: Chromaticity distance from the surface's own colour over which polarized light counts in full
 #: as the illuminant's (:func:`projected_chromaticity`'s ``own_colour``).
 OWN_COLOUR = 0.1
@@ -103,7 +103,7 @@ def _parts(stack: Any) -> tuple[Any, Any, Any, Any]:
     xp = namespace(s)
     ic = s.mean(axis=0)
     isv = 0.5 * xp.hypot(s[0] - s[2], s[1] - s[3])
-    unsat = xp.amax(xp.amax(s, axis=0), axis=-1) < _SATURATED
+    unsat = xp.amax(xp.amax(s, axis=0), axis=-1) < SATURATED
     return s, ic, isv, unsat
 
 
@@ -274,7 +274,7 @@ def _projection_terms(stack: Any, efficiency: Any, own_colour: float | None) -> 
     p = xp.pad_hw(vs, 1, 0.0)                                   # zeros outside
     box = sum(p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
     terms = xp.einsum("hwcj,hwj->hwc", v, box - vs)             # (H, W, 3)
-    ok = xp.amax(xp.amax(x, axis=0), axis=-1) < _SATURATED
+    ok = xp.amax(xp.amax(x, axis=0), axis=-1) < SATURATED
     if own_colour is not None:
         terms, ok = _own_colour_weighted(terms, x, ok, float(own_colour))
     return terms, ok

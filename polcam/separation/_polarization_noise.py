@@ -16,7 +16,7 @@ import numpy as np
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
-from polcam.separation._illuminant import _SATURATED
+from polcam.separation._illuminant import SATURATED
 
 #: Noise deviations at which the non-negative garrote of the polarized amplitude (``noise="shrink"``) sets in.
 _KSIG = 2.5
@@ -48,7 +48,7 @@ def _stokes_noise(stack: Any, ic: Any) -> Any:
     u = (0.5 * (s[1] - s[3])).reshape(flat)
     r = (0.5 * (s[0] + s[2] - s[1] - s[3])).reshape(flat)
     i2 = ic.reshape(flat)
-    valid = (xp.amax(s, axis=0) < _SATURATED).reshape(flat)      # clipping breaks both identities
+    valid = (xp.amax(s, axis=0) < SATURATED).reshape(flat)      # clipping breaks both identities
     out = []
     for c in range(i2.shape[-1]):
         lev = i2[..., c]

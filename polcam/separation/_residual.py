@@ -16,7 +16,7 @@ import numpy as np
 
 from polcam import _imageops
 from polcam._xp import namespace
-from polcam.separation._illuminant import _SATURATED, _plane_basis
+from polcam.separation._illuminant import SATURATED, _plane_basis
 from polcam.separation._polarization_noise import _COHERENT_KSIG, _prior_removal, _reduction
 
 __all__ = ["residual_steps", "coherent_gate", "gradient_ratio"]
@@ -218,7 +218,7 @@ def residual_steps(v: dict[str, Any], opts: dict[str, Any], keep: dict[str, Any]
             # not where a channel is clipped at all four angles: that pixel's colour is not measured (an
             # overexposed white wall under a tinted light looked coloured and lost up to 38 % of its
             # light); a clipped highlight is step 7's
-            wgt = xp.where(xp.amax(measured, axis=-1) >= _SATURATED, 0.0, wgt)
+            wgt = xp.where(xp.amax(measured, axis=-1) >= SATURATED, 0.0, wgt)
             wgt = wgt[..., None]
             diffuse = diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig,
                                                      smooth=k_small)

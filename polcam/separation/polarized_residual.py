@@ -46,7 +46,7 @@ from polcam.separation._clipping import declipped, fill_clipped_highlights
 from polcam.separation._diffuse_polarization import radial_share
 from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import peak_excess
-from polcam.separation._illuminant import _SATURATED, estimate_illuminant
+from polcam.separation._illuminant import SATURATED, estimate_illuminant
 from polcam.separation._polarization_noise import _axis_debias, _reduction, _stokes_noise
 from polcam.separation._residual import coherent_gate, gradient_ratio, residual_steps
 from polcam.separation._registry import register
@@ -239,7 +239,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
     xp = namespace(s)
     h, w = s.shape[1:3]
     measured = s.mean(axis=0)
-    clipped_any = (s >= _SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
+    clipped_any = (s >= SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
     if opts["declip"]:
         s = declipped(s)
     if opts["edge_fit"]:
