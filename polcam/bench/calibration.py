@@ -41,22 +41,23 @@ counts, 20000 electrons full well, 4 electrons read noise.  Then:
 
 from __future__ import annotations
 
-import argparse
-import json
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from polcam.calibration.apply import apply_calibration, correct_stack
 from polcam.calibration.estimate import calibrate_dark, calibrate_flat, calibrate_polarizer, class_index
-from polcam.synth.sensor import ImperfectSensor
 from polcam.calibration.store import Calibration
 from polcam.demosaicing import demosaic
+from polcam.errors import PolcamError
 from polcam.frame import Frame
 from polcam.polarimetry import aolp, dolp, stokes
+from polcam.separation import separate
+from polcam.synth.render import render
+from polcam.synth.scenes import scene
+from polcam.synth.sensor import ImperfectSensor
 
 __all__ = [
     "VARIANTS", "format_markdown", "make_calibration", "precision", "run",
@@ -250,11 +251,6 @@ def separation_rows(sensor: ImperfectSensor, cal: Calibration, *, methods: Seque
     which).
     """
     import dataclasses
-
-    from polcam.errors import PolcamError
-    from polcam.separation import separate
-    from polcam.synth.render import render
-    from polcam.synth.scenes import scene
 
     h, w = sensor.shape
     if h != w:

@@ -43,7 +43,6 @@ test checks the registry against it).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from collections.abc import Sequence

@@ -42,10 +42,7 @@ Run as ``polcam bench demosaic --data DIR``.
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
-import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path

@@ -31,23 +31,21 @@ weights.
 
 from __future__ import annotations
 
-import argparse
 import itertools
-import sys
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
 from polcam.bench.demosaic import quality
+from polcam.bench.lmmse_training import LUMA, fit_all, gram_sums, noisy_raw, training_stack
 from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.demosaicing.lmmse import LMMSE_PARAMS, run_lmmse, shipped_weights
 from polcam.demosaicing.lmmse_eari import BLEND_PARAMS, run_blend
-from polcam.synth.photos import VALIDATION_PHOTOS, photo_stack
-from polcam.bench.lmmse_training import LUMA, noisy_raw, fit_all, gram_sums, training_stack
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 from polcam.synth.patterns import SCENES, make_scene
+from polcam.synth.photos import VALIDATION_PHOTOS, photo_stack
 
 __all__ = ["VALIDATION_SEED", "evaluate", "score", "select", "select_blend", "select_shared", "stage_params",
            "validation_scenes"]

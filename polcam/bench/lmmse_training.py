@@ -41,10 +41,8 @@ validation set (:mod:`polcam.bench.demosaic_validation`).
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
-import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -56,17 +54,16 @@ from polcam.demosaicing.lmmse import (  # noqa: I001
     BLOCK,
     CANONICAL,
     NBLOCKS,
-    WEIGHTS_FILE,
+    block_features,
     lattice_of_taps,
     tap_offsets,
-    block_features,
     to_blocks,
     weight_key,
 )
-from polcam.synth.photos import TRAINING_PHOTOS, photo_stack
 from polcam.io.atomic import atomic_path
 from polcam.mosaic import Layout, parse_layout
 from polcam.synth.patterns import SCENES, make_scene
+from polcam.synth.photos import TRAINING_PHOTOS, photo_stack
 
 __all__ = ["fit_bank", "noisy_raw", "save_weights", "train", "training_stack"]
 

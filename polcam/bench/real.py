@@ -46,7 +46,6 @@ for evaluation, never copy them into the product.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import time
@@ -58,8 +57,11 @@ from typing import Any
 import cv2
 import numpy as np
 
+from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import FrameReadError, PolcamError
 from polcam.io.atomic import atomic_path, atomic_write
+from polcam.polarimetry import dolp, imin
+from polcam.separation import METHODS, method_spec, separate
 
 __all__ = ["RealScore", "find_scenes", "load_stack", "prepare", "relight", "camera_stack", "achromatic_mask",
            "metrics", "run", "format_table", "write_outputs", "default_data"]
@@ -179,15 +181,11 @@ def relight(true_stack: np.ndarray, *, exposure: float = 1.0,
 
 def camera_stack(true_stack: np.ndarray, *, layout: str = "imx250myr") -> np.ndarray:
     """What a colour polarization camera gives: ``true_stack`` mosaicked, demosaiced (default method), clipped."""
-    from polcam.demosaicing import demosaic, mosaic_stack
-
     raw = mosaic_stack(true_stack.astype(np.float32), layout=layout)
     return np.clip(demosaic(raw, layout=layout), 0.0, 1.0).astype(np.float64)
 
 
 def _imin(stack: np.ndarray) -> np.ndarray:
-    from polcam.polarimetry import imin
-
     return np.maximum(imin(stack), 0.0)
 
 
@@ -197,8 +195,6 @@ def achromatic_mask(true_stack: np.ndarray) -> np.ndarray:
     True DoLP of the grey image < 0.03, saturation ``(max - min) / max`` of the true mean < 0.12,
     mean intensity > 0.08.
     """
-    from polcam.polarimetry import dolp
-
     tmean = true_stack.mean(axis=0)
     tmax, tmin = tmean.max(-1), tmean.min(-1)
     sat = (tmax - tmin) / np.maximum(tmax, 1e-6)
@@ -251,8 +247,6 @@ def metrics(diffuse: np.ndarray, specular: np.ndarray, given: np.ndarray,
 
 
 def _colour_methods() -> list[str]:
-    from polcam.separation import METHODS
-
     return list(METHODS)
 
 
@@ -292,8 +286,6 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     MethodError
         An unknown method name.
     """
-    from polcam.separation import separate
-
     found = find_scenes(Path(data))
     if not found:
         raise PolcamError(f"--data {data}: no real colour stack found (expected real-color-stack/"
@@ -303,7 +295,6 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
         if unknown:
             raise PolcamError(f"scene(s) {', '.join(unknown)} not in {data}; found {', '.join(found)}")
         found = {k: v for k, v in found.items() if k in scenes}
-    from polcam.separation import method_spec
 
     meths = list(methods or _colour_methods())
     for m in meths:

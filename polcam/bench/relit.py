@@ -42,7 +42,6 @@ evaluation, never copy them into the product.
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -50,6 +49,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from polcam.bench.real import achromatic_mask, camera_stack, find_scenes, load_stack, metrics, prepare, relight
+from polcam.demosaicing import demosaic, mosaic_stack
+from polcam.errors import PolcamError
+from polcam.separation import METHODS, method_spec, separate
 
 __all__ = ["VARIANTS", "CLIP_LEVEL", "MIN_REGION", "RelitScore", "matte_mask", "invented_structure", "run", "format_table",
            "summary"]
@@ -230,10 +234,6 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     -------
     list of RelitScore
     """
-    from polcam.bench.real import achromatic_mask, camera_stack, find_scenes, load_stack, metrics, prepare, relight
-    from polcam.errors import PolcamError
-    from polcam.separation import METHODS, method_spec, separate
-
     found = find_scenes(Path(data))
     if not found:
         raise PolcamError(f"--data {data}: no real colour stack found")
@@ -288,8 +288,6 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
 
 def _mono_camera(true_grey: np.ndarray) -> np.ndarray:
     """What a mono polarization camera gives: (4, H, W) mosaicked (IMX250MZR), demosaiced, clipped."""
-    from polcam.demosaicing import demosaic, mosaic_stack
-
     raw = mosaic_stack(true_grey.astype(np.float32), layout="imx250mzr")
     return np.clip(demosaic(raw, layout="imx250mzr"), 0.0, 1.0).astype(np.float64)
 

@@ -32,8 +32,6 @@ Run as ``polcam bench sihr --data DIR [--methods yang10 shen13 ...]``.
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -44,6 +42,8 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from polcam.errors import FrameReadError, MethodError
+from polcam.separation import method_spec, separate
+from polcam.separation import methods as registered
 
 __all__ = [
     "IMAGES",
@@ -203,8 +203,6 @@ def load_pair(data_dir: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 def default_methods() -> list[str]:
     """Registered methods of the reference table (canonical order), then the extras."""
-    from polcam.separation import methods as registered
-
     known = registered()
     return [m for m in known if m in REFERENCE_PSNR] + [m for m in EXTRA_METHODS if m in known]
 
@@ -239,8 +237,6 @@ def run(data_dir: Path, methods: list[str] | None = None) -> list[dict[str, Any]
     FrameReadError
         Missing or unreadable images.
     """
-    from polcam.separation import method_spec, separate
-
     names = default_methods() if methods is None else list(methods)
     for m in names:
         if method_spec(m).kind != "single":

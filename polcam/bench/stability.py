@@ -20,7 +20,6 @@ docs/algorithm.md ("Continuity", "Frame-to-frame stability") reports both for
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 from collections.abc import Sequence
@@ -29,6 +28,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from polcam.bench.quality import score
+from polcam.errors import MethodError
+from polcam.io.atomic import atomic_write
+from polcam.separation import separate
+from polcam.separation._illuminant import SATURATED
+from polcam.separation._registry import estimated_illuminant, takes_illuminant
+from polcam.synth.render import render
+from polcam.synth.scenes import scene
 
 __all__ = ["StabilityRow", "perturbed", "run", "format_markdown", "write_outputs"]
 
@@ -67,8 +75,6 @@ def perturbed(stack: np.ndarray, rel: float, seed: int) -> np.ndarray:
     The white level is the one the separation methods treat as clipped (``_illuminant.SATURATED``):
     a clipped sample stays as it is, as a real one does.
     """
-    from polcam.separation._illuminant import SATURATED
-
     s = np.asarray(stack, dtype=np.float32)
     noise = np.random.default_rng(seed).normal(0.0, rel, s.shape)
     return np.where(s >= SATURATED, s, s * (1.0 + noise)).astype(np.float32)
@@ -106,13 +112,6 @@ def run(*, scenes: Sequence[str], methods: Sequence[str], size: int = 96, frames
     -------
     list of StabilityRow
     """
-    from polcam.bench.quality import score
-    from polcam.errors import MethodError
-    from polcam.separation import separate
-    from polcam.separation._registry import estimated_illuminant, takes_illuminant
-    from polcam.synth.render import render
-    from polcam.synth.scenes import scene
-
     if frames < 2:
         raise MethodError(f"bench stability: frames={frames}: expected at least 2")
     if not rel > 0:
@@ -164,8 +163,6 @@ def format_markdown(rows: Sequence[StabilityRow]) -> str:
 
 def write_outputs(rows: Sequence[StabilityRow], out_dir: Path) -> list[Path]:
     """stability.csv and table.md in ``out_dir`` (written atomically)."""
-    from polcam.io.atomic import atomic_write
-
     out_dir.mkdir(parents=True, exist_ok=True)
     buf = io.StringIO()
     w = csv.writer(buf)

@@ -33,8 +33,10 @@ from typing import Any
 
 import numpy as np
 
+from polcam._version import __version__
 from polcam.errors import LayoutError, PolcamError
 from polcam.frame import Frame
+from polcam.io.atomic import atomic_write
 from polcam.mosaic import Layout, parse_layout
 
 __all__ = [
@@ -90,8 +92,6 @@ def utc_now() -> str:
 
 def _version() -> str:
     try:
-        from polcam._version import __version__
-
         return str(__version__)
     except Exception:  # pragma: no cover - partial trees
         return "unknown"
@@ -354,8 +354,6 @@ def save_calibration(path: str | PathLike[str], calibration: Calibration) -> Pat
     CalibrationError
         A calibration without any map.
     """
-    from polcam.io.atomic import atomic_write
-
     target = Path(path)
     if not calibration.maps:
         raise CalibrationError("nothing to save: the calibration holds no map", path=target)

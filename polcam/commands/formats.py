@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from polcam.errors import PixelFormatError
+from polcam.mosaic import LAYOUTS, PIXEL_FORMATS, VENDOR_ALIASES, vendor_key
+
 __all__ = ["add_parser", "cmd_formats"]
 
 
 def cmd_formats(args: argparse.Namespace) -> int:
-    from polcam.errors import PixelFormatError
-    from polcam.mosaic import VENDOR_ALIASES, LAYOUTS, PIXEL_FORMATS, vendor_key
-
     key = vendor_key(args.vendor)
     known = sorted({v for v, _ in PIXEL_FORMATS if v != "*"} | set(VENDOR_ALIASES.values()))
     if key is not None and key not in known:

@@ -35,7 +35,7 @@ from os import PathLike
 from pathlib import Path
 from typing import IO, Any
 
-from polcam.errors import FrameWriteError
+from polcam.errors import FrameWriteError, PolcamError
 
 __all__ = ["atomic_path", "atomic_write", "fsync_dir", "os_reason", "probe_folder"]
 
@@ -78,8 +78,6 @@ def os_reason(exc: BaseException) -> str:
     An OSError gives its message and errno name; a polcam error raised from one
     gives that OSError's; anything else its own text.
     """
-    from polcam.errors import PolcamError
-
     if isinstance(exc, OSError):
         reason = exc.strerror or str(exc)
         name = errno.errorcode.get(exc.errno) if exc.errno is not None else None

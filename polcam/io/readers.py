@@ -87,9 +87,9 @@ from polcam.frame import Frame
 from polcam.io.decoders import (
     MAX_PIXELS,
     RAW_EXTENSIONS,
-    DecodeRequest,
     Decoded,
     Decoder,
+    DecodeRequest,
     check_raw_file,
     decoder_for,
     deinterleave_angles,

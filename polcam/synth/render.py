@@ -90,6 +90,8 @@ from typing import Any
 import numpy as np
 
 from polcam.errors import FrameWriteError, LayoutError, PolcamError
+from polcam.frame import Frame
+from polcam.io import atomic_path, atomic_write, write_frame, write_image
 from polcam.mosaic import ANGLES, Layout, parse_layout
 from polcam.synth.mesh import Camera, Mesh, load_mesh, rasterize, rotation_matrix
 
@@ -735,9 +737,6 @@ def write_scene(rendered: Rendered, out_dir: str | PathLike[str], *, bit_depth: 
         A bad ``bit_depth`` or an unwritable folder.
     """
     import cv2
-
-    from polcam.frame import Frame
-    from polcam.io import atomic_path, atomic_write, write_frame, write_image
 
     out = Path(out_dir)
     if not (isinstance(bit_depth, (int, np.integer)) and 8 <= bit_depth <= 16):

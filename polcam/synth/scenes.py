@@ -28,7 +28,7 @@ statistics of every scene as a Markdown table (docs/synthetic.md).
 from __future__ import annotations
 
 from polcam.errors import PolcamError
-from polcam.synth.render import SceneSpec, Texture
+from polcam.synth.render import SceneSpec, Texture, render
 
 __all__ = ["BUNNY", "SCENES", "STRESS", "SENSOR", "scene", "scene_names", "statistics_table"]
 
@@ -222,8 +222,6 @@ def statistics_table(*, size: int = 256, seed: int = 0) -> str:
     str
         The table, one line per scene.
     """
-    from polcam.synth.render import render
-
     lines = [
         f"| scene (size {size}, seed {seed}) | saturated fraction | specular / diffuse | object pixels | seconds |",
         "|---|---:|---:|---:|---:|",

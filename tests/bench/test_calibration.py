@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from polcam.calibration.__main__ import main as module_main
 from polcam.bench.calibration import VARIANTS, format_markdown, run, smooth_scene, stokes_errors
+from polcam.calibration.__main__ import main as module_main
 from polcam.polarimetry import stokes
 
 

@@ -6,8 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from polcam.demosaicing import demosaic, mosaic_stack
-from polcam.bench.lmmse_training import training_stack
 from polcam.bench.demosaic_validation import (
     VALIDATION_SEED,
     evaluate,
@@ -18,7 +16,9 @@ from polcam.bench.demosaic_validation import (
     stage_params,
     validation_scenes,
 )
+from polcam.bench.lmmse_training import training_stack
 from polcam.cli import main
+from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import MethodError
 from polcam.mosaic import parse_layout
 

@@ -8,11 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from polcam.demosaicing import mosaic_stack
-from polcam.demosaicing.lmmse import CANONICAL, lattice_of_taps, tap_offsets
-from polcam.demosaicing.lmmse import apply_bank
 from polcam.bench.lmmse_training import accumulate, fit_bank, gram_sums, pattern_stack, training_stack
 from polcam.cli import main
+from polcam.demosaicing import mosaic_stack
+from polcam.demosaicing.lmmse import CANONICAL, apply_bank, lattice_of_taps, tap_offsets
 from polcam.mosaic import parse_layout
 from polcam.polarimetry import dolp
 

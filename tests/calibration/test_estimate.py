@@ -25,9 +25,9 @@ from polcam.calibration.estimate import (
     robust_sigma,
 )
 from polcam.calibration.model import nominal_orientation
-from polcam.synth.sensor import ImperfectSensor
 from polcam.calibration.store import CalibrationError
 from polcam.frame import Frame
+from polcam.synth.sensor import ImperfectSensor
 
 SIZE = 32
 DARK_N, FLAT_N, ANGLES_N, PER_ANGLE = 128, 512, 16, 32

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from polcam.errors import FrameReadError
+from polcam.frame import Frame
 from polcam.io import read_frame, write_frame
 from polcam.io.decoders import MAX_PIXELS
-from polcam.frame import Frame
 from polcam.mosaic import parse_layout
 
 

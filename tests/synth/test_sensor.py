@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from polcam.calibration.model import nominal_orientation
-from polcam.synth.sensor import ImperfectSensor
 from polcam.errors import PolcamError
+from polcam.synth.sensor import ImperfectSensor
 
 
 def test_random_sensor_has_the_planted_statistics():

@@ -50,8 +50,8 @@ def _add_sihr(bsub: Any) -> None:
 def run_sihr(args: argparse.Namespace) -> int:
     """Run a parsed ``polcam bench sihr`` and print the table."""
     if not args.data.is_dir():
-        print(f"error: --data {args.data}: not a folder (expected the shen2013 images and their *_gt.png)",
-              file=sys.stderr)
+        print(f"error: --data {args.data}: not a folder (expected animals.png, animals_gt.png, ... of "
+              "shen2013, or the folder holding shen2013/)", file=sys.stderr)
         return 2
     methods = [m for item in args.methods for m in item.split(",") if m] if args.methods else None
     try:
