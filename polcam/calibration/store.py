@@ -90,13 +90,6 @@ def utc_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
 
 
-def _version() -> str:
-    try:
-        return str(__version__)
-    except Exception:  # pragma: no cover - partial trees
-        return "unknown"
-
-
 @dataclass
 class Calibration:
     """Dark, flat and polarizer maps of one camera at one readout geometry.
@@ -138,7 +131,7 @@ class Calibration:
     maps: dict[str, np.ndarray] = field(default_factory=dict)
     stages: dict[str, dict[str, Any]] = field(default_factory=dict)
     created: str = field(default_factory=utc_now)
-    polcam_version: str = field(default_factory=_version)
+    polcam_version: str = __version__
     source: str | None = None
     _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
