@@ -366,7 +366,7 @@ def _drawn(shot: np.ndarray) -> bool:
 
 
 def doc_screenshots(out_dir: str | Path, *, work: str | Path | None = None) -> list[Path]:
-    """The screenshots of docs/viewer.md: a processed batch and a live capture, in ``out_dir``.
+    """The screenshots of docs/guide/viewer.md: a processed batch and a live capture, in ``out_dir``.
 
     Made the way the browser tests look at the viewer (:func:`serve`,
     :func:`viewer_screenshot`) on the fixtures: ``polcam process`` of

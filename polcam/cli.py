@@ -1,6 +1,6 @@
 """The ``polcam`` entry point (``polcam.cli:main``): a shim onto :mod:`polcam.commands`.
 
-``python -m polcam.cli --markdown`` prints docs/cli.md.
+``python -m polcam.cli --markdown`` prints docs/reference/cli.md.
 """
 
 from __future__ import annotations

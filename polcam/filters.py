@@ -120,6 +120,34 @@ def _grid_blur(xp: Any, grid_shape: tuple[int, int], sigma: float, like: Any) ->
     return lambda s: my @ s @ mxt
 
 
+def _checked(xp: Any, guide: Any, weights: Any, *, sigma_spatial: float, sigma_range: float, levels: int | None,
+             downsample: int | None) -> tuple[Any, Any]:
+    """The guide (H, W) float64 and the weights (1 when None), checked with the options (MethodError)."""
+    g = xp.asarray(guide, dtype=xp.float64)
+    if g.ndim != 2 or 0 in g.shape:
+        raise MethodError(f"joint bilateral guide of shape {tuple(g.shape)}: expected a non-empty (H, W) image")
+    if not bool(xp.isfinite(g).all()):
+        raise MethodError("joint bilateral guide contains NaN or infinite values")
+    if not (np.isfinite(sigma_spatial) and sigma_spatial > 0):
+        raise MethodError(f"sigma_spatial={sigma_spatial!r}: expected a positive number of pixels")
+    if not (np.isfinite(sigma_range) and sigma_range > 0):
+        raise MethodError(f"sigma_range={sigma_range!r}: expected a positive number in guide units")
+    if levels is not None and (int(levels) != levels or levels < 2):
+        raise MethodError(f"levels={levels!r}: expected an integer >= 2")
+    if downsample is not None and (int(downsample) != downsample or downsample < 1):
+        raise MethodError(f"downsample={downsample!r}: expected an integer >= 1")
+    h, w = g.shape
+    if weights is None:
+        wts = xp.zeros((h, w), like=g) + 1.0
+    else:
+        wts = xp.asarray(weights, like=g, dtype=xp.float64)
+        if wts.shape != g.shape:
+            raise MethodError(f"weights of shape {tuple(wts.shape)}: expected the guide's shape {(h, w)}")
+        if not bool(xp.isfinite(wts).all()) or float(wts.min()) < 0:
+            raise MethodError("weights must be finite and non-negative")
+    return g, wts
+
+
 class JointBilateral:
     """A joint bilateral filter bound to one guide image.
 
@@ -168,28 +196,9 @@ class JointBilateral:
         downsample: int | None = None,
     ) -> None:
         self.xp = xp = namespace(guide)
-        g = xp.asarray(guide, dtype=xp.float64)
-        if g.ndim != 2 or 0 in g.shape:
-            raise MethodError(f"joint bilateral guide of shape {tuple(g.shape)}: expected a non-empty (H, W) image")
-        if not bool(xp.isfinite(g).all()):
-            raise MethodError("joint bilateral guide contains NaN or infinite values")
-        if not (np.isfinite(sigma_spatial) and sigma_spatial > 0):
-            raise MethodError(f"sigma_spatial={sigma_spatial!r}: expected a positive number of pixels")
-        if not (np.isfinite(sigma_range) and sigma_range > 0):
-            raise MethodError(f"sigma_range={sigma_range!r}: expected a positive number in guide units")
-        if levels is not None and (int(levels) != levels or levels < 2):
-            raise MethodError(f"levels={levels!r}: expected an integer >= 2")
-        if downsample is not None and (int(downsample) != downsample or downsample < 1):
-            raise MethodError(f"downsample={downsample!r}: expected an integer >= 1")
+        g, wts = _checked(xp, guide, weights, sigma_spatial=sigma_spatial, sigma_range=sigma_range, levels=levels,
+                          downsample=downsample)
         h, w = g.shape
-        if weights is None:
-            wts = xp.zeros((h, w), like=g) + 1.0
-        else:
-            wts = xp.asarray(weights, like=g, dtype=xp.float64)
-            if wts.shape != g.shape:
-                raise MethodError(f"weights of shape {tuple(wts.shape)}: expected the guide's shape {(h, w)}")
-            if not bool(xp.isfinite(wts).all()) or float(wts.min()) < 0:
-                raise MethodError("weights must be finite and non-negative")
         self.shape = (h, w)
         self.sigma_spatial = float(sigma_spatial)
         self.sigma_range = float(sigma_range)
@@ -207,10 +216,20 @@ class JointBilateral:
         self.levels = np.linspace(gmin, gmax, n_levels) if n_levels > 1 else np.array([gmin])
         levels_a = xp.asarray(self.levels, like=g)
 
-        # Range weights of every level times the confidences.  With a coarse
-        # grid they are laid out cell by cell, (cells, K, factor^2), for the
-        # splatting product; the image is zero-padded to whole cells (the
-        # padding has weight 0).
+        self._range_w = self._range_weights(g, wts, levels_a)
+        self._blur = _grid_blur(xp, self.grid_shape, self.grid_sigma, g)
+        den = self._blur(self._splat(None))
+        self._den_ok = den > 1e-300
+        self._den = xp.where(self._den_ok, den, 1.0)
+
+        self._slicing(g, gmin, gmax, n_levels)
+
+    def _range_weights(self, g: Any, wts: Any, levels_a: Any) -> Any:
+        """``exp(-((L_k - g) / sigma_range)^2 / 2) w`` of every level k, (K, H, W) or, with a coarse grid,
+        laid out cell by cell (cells, K, factor^2) for the splatting product (the image zero-padded to
+        whole cells; the padding has weight 0)."""
+        xp, factor = self.xp, self.downsample
+        h, w = self.shape
         gh, gw = self.grid_shape
         self._pad = (gh * factor - h, gw * factor - w)
         inv = 1.0 / self.sigma_range
@@ -226,14 +245,14 @@ class JointBilateral:
         rw *= -0.5
         xp.exp(rw, out=rw)
         rw *= wb
-        self._range_w = rw
-        self._blur = _grid_blur(xp, self.grid_shape, self.grid_sigma, g)
-        den = self._blur(self._splat(None))
-        self._den_ok = den > 1e-300
-        self._den = xp.where(self._den_ok, den, 1.0)
+        return rw
 
-        # Trilinear slicing: each pixel blends two levels x four grid corners
-        # of the (small, cache-resident) table of components.
+    def _slicing(self, g: Any, gmin: float, gmax: float, n_levels: int) -> None:
+        """Trilinear slicing tables: each pixel blends two levels x four grid corners of the (small,
+        cache-resident) table of components (``_idx``, ``_slice_w``, ``_slice_ok``)."""
+        xp, factor = self.xp, self.downsample
+        h, w = self.shape
+        gh, gw = self.grid_shape
         if n_levels > 1:
             kf = (g - gmin) * ((n_levels - 1) / (gmax - gmin))
             k0 = xp.astype(xp.clip(xp.floor(kf), 0, n_levels - 2), xp.index)

@@ -11,7 +11,7 @@ from polcam.mosaic import Layout, parse_layout
 
 __all__ = ["Frame", "SIDECAR_KEYS"]
 
-#: Keys of the JSON sidecar ``<stem>.json`` written beside a raw frame (docs/cameras.md lists them).
+#: Keys of the JSON sidecar ``<stem>.json`` written beside a raw frame (docs/guide/cameras.md lists them).
 SIDECAR_KEYS: tuple[str, ...] = (
     "layout", "pixel_format", "vendor", "width", "height", "bit_depth", "msb_aligned",
     "black_level", "white_level", "exposure_us", "gain_db", "timestamp_ns", "frame_id",

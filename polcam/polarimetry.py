@@ -344,6 +344,16 @@ def stokes(stack: np.ndarray) -> Stokes:
     -------
     Stokes
         ``s0`` in [0, 2 max(I)], ``s1`` and ``s2`` in [-max(I), max(I)].
+
+    Examples
+    --------
+    One pixel seen through the polarizers at 0, 45, 90 and 135 degrees:
+
+    >>> import numpy as np
+    >>> import polcam
+    >>> stack = np.array([0.7, 0.3, 0.1, 0.5]).reshape(4, 1, 1)
+    >>> polcam.stokes(stack)
+    Stokes(s0=array([[0.8]]), s1=array([[0.6]]), s2=array([[-0.2]]))
     """
     m = maps(stack, ("s0", "s1", "s2"))
     return Stokes(m["s0"], m["s1"], m["s2"])
@@ -359,6 +369,14 @@ def dolp(stack_or_stokes: np.ndarray | Stokes) -> np.ndarray:
     """Degree of linear polarization in [0, 1] (0 where S0 <= 0).
 
     Accepts a (4, ...) stack or a :class:`Stokes` tuple.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import polcam
+    >>> stack = np.array([0.7, 0.3, 0.1, 0.5]).reshape(4, 1, 1)
+    >>> polcam.dolp(stack)  # sqrt(S1**2 + S2**2) / S0 = sqrt(0.4) / 0.8
+    array([[0.79056942]])
     """
     return _one(stack_or_stokes, "dolp")
 
@@ -367,6 +385,14 @@ def aolp(stack_or_stokes: np.ndarray | Stokes) -> np.ndarray:
     """Angle of linear polarization in radians, in [0, pi).
 
     Accepts a (4, ...) stack or a :class:`Stokes` tuple.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> import polcam
+    >>> s = polcam.stokes(np.array([0.7, 0.3, 0.1, 0.5]).reshape(4, 1, 1))
+    >>> polcam.aolp(s)  # atan2(S2, S1) / 2 = atan2(-0.2, 0.6) / 2, wrapped into [0, pi)
+    array([[2.98071738]])
     """
     return _one(stack_or_stokes, "aolp")
 

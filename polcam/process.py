@@ -33,7 +33,7 @@ not oversubscribed and the results do not depend on the thread count), or a
 Dask distributed cluster (``scheduler="tcp://host:8786"``, the ``dask`` extra).
 Local workers are supervised (:mod:`polcam.workpool`): a worker that dies
 (out-of-memory killer, kill -9) costs only the frame it held, reported failed
-with the reason; the workers die with the run.  docs/reliability.md lists
+with the reason; the workers die with the run.  docs/guide/faults.md lists
 every fault and what the run does.
 """
 
@@ -57,6 +57,7 @@ from polcam._version import __version__
 from polcam._hashing import sha256_file
 from polcam.errors import PolcamError
 from polcam.pipeline import default_demosaic
+from polcam.sinks.base import FanOut, Record, Sink
 from polcam.sinks.files import FORMATS
 from polcam.outdir import summarize, write_summary
 from polcam.process_checks import _takes, check_run, layout_hint
@@ -143,10 +144,6 @@ def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False,
         else:
             problems.append({"input": str(root), "error": "no such file or folder"})
     return [jobs[k] for k in sorted(jobs)], problems
-
-
-def _file_record(path: Path) -> dict[str, Any]:
-    return {"bytes": path.stat().st_size, "sha256": sha256_file(path)}
 
 
 def _is_done(job: FrameJob, opts: ProcessOptions, fingerprint: str) -> bool:
@@ -317,7 +314,8 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
              parts: dict[str, Any], fingerprint: str, t0: float) -> dict[str, Any]:
     from polcam.pipeline import run_frame
     from polcam.separation import method_spec
-    from polcam.sinks.files import write_meta, write_products
+    from polcam.sinks.base import Record
+    from polcam.sinks.files import ProductFiles
 
     calibration = _calibration(opts.calibration, parts["calibration_sha256"]) if opts.calibration else None
     read_seconds = time.perf_counter() - t0
@@ -330,23 +328,17 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
     frame = result.frame
     timings: dict[str, float] = {"read": read_seconds + result.timings["calibrate"],
                                  **{k: v for k, v in result.timings.items() if k != "calibrate"}}
-    t = time.perf_counter()
     source = os.path.abspath(job.input)  # meta.json names the raw frame from wherever it is read
     file_meta = {"input": source, "method": method, "layout": str(frame.layout),
                  "fingerprint": fingerprint, "polcam_version": __version__}
-    _exit_if_orphaned()
-    names = write_products(job.target, {name: result.products[name] for name in OUTPUTS}, fmt=opts.format,
-                           unit=_UNIT, metadata=file_meta)
-    files = {n: _file_record(Path(job.target) / n) for n in names}
-    timings["write"] = time.perf_counter() - t
     assert result.separation is not None
     info = {k: v for k, v in result.separation.info.items() if k not in ("residuals",)}
     meta = {
         "input": source,
         "input_sha256": parts["input_sha256"],
         "name": job.name,
-        "outputs": names,
-        "files": files,
+        "outputs": [],                   # the file sink sets outputs, files and timings["write"]
+        "files": {},
         "resolution": opts.resolution,
         "layout": str(frame.layout),
         "frame": _jsonable({k: v for k, v in frame.metadata.items() if k != "path"}),
@@ -366,8 +358,9 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, method: str, metho
         "fingerprint_parts": parts,
         "fingerprint": fingerprint,
     }
-    _exit_if_orphaned()
-    write_meta(job.target, meta)
+    products = {name: result.products[name] for name in OUTPUTS}
+    files = ProductFiles(fmt=opts.format, unit=_UNIT, metadata=file_meta, guard=_exit_if_orphaned)
+    files.log(0, Record(frame=frame, products=products, folder=Path(job.target), name=job.name, meta=meta))
     return meta
 
 
@@ -393,31 +386,6 @@ def _calibration(path: str, digest: str) -> Any:
     return _CALIBRATIONS[key]
 
 
-class RunRecording:  # RERUN SINK (process --rerun): to become the shared polcam.sinks.rerun sink
-    """A run as a Rerun recording (``--rerun FILE.rrd``): one time step per frame.
-
-    Logged through :class:`polcam.sinks.rerun.RerunSink` (the entity paths and
-    encodings live capture uses): for each finished frame its outputs read
-    back from disk (``/polarization/*``, ``/layers/*``) and its raw frame
-    (``/camera/raw``) on the ``frame`` sequence timeline, the frame's position
-    in the sorted input list.
-    """
-
-    def __init__(self, path: Path, names: Sequence[str]) -> None:
-        from polcam.sinks.rerun import RerunSink
-
-        self._index = {n: i for i, n in enumerate(names)}
-        self._sink = RerunSink(path, raw_every=1, view_scale=1.0, live=False)
-
-    def log_frame(self, folder: Path, ext: str, name: str) -> None:
-        """Log the outputs of one finished frame (``ext``: kept for callers; any format is read)."""
-        self._sink.log_output(self._index.get(name, len(self._index)), folder)
-
-    def close(self) -> None:
-        """Flush the recording to disk."""
-        self._sink.close()
-
-
 #: True in the worker processes of :func:`run`: the frames run in parallel there, so a method with
 #: a ``workers`` option (the tensor methods) runs with one instead of starting processes of its own.
 _IN_POOL = False
@@ -434,7 +402,7 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         scheduler: str | None = None, force: bool = False,
         on_result: Callable[[dict[str, Any]], None] | None = None,
         stop: Callable[[], bool] | None = None, abort: Callable[[], Any] | None = None,
-        scheduler_timeout: float = 10.0) -> list[dict[str, Any]]:
+        scheduler_timeout: float = 10.0, sinks: Sequence[Sink] = ()) -> list[dict[str, Any]]:
     """Process ``jobs``; results in completion order.
 
     Parameters
@@ -464,6 +432,13 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         that frame cancelled to ``on_result`` and propagates.
     scheduler_timeout
         Seconds to wait for a Dask scheduler given by address.
+    sinks
+        Each finished frame (status "done" or "skipped") is logged to these
+        (:class:`polcam.sinks.base.Sink`, e.g.
+        :class:`polcam.sinks.recording.RecordingSink`) as a
+        :class:`polcam.sinks.base.Record` with its ``folder`` and ``name``, at
+        its index in ``jobs``, in completion order, after ``on_result``.  They are closed when the run ends, however
+        it ends.
 
     Returns
     -------
@@ -478,12 +453,25 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
         The Dask scheduler cannot be reached within ``scheduler_timeout``.
     """
     results: list[dict[str, Any]] = []
+    fan = FanOut(sinks)
+    where = {job.name: (i, Path(job.target)) for i, job in enumerate(jobs)}
 
     def done(r: dict[str, Any]) -> None:
         results.append(r)
         if on_result:
             on_result(r)
+        if fan.sinks and r["status"] in ("done", "skipped"):
+            index, folder = where[r["name"]]
+            fan.log(index, Record(folder=folder, name=r["name"]))
 
+    with fan:
+        _run(jobs, opts, workers, scheduler, force, done, stop, abort, scheduler_timeout)
+    return results
+
+
+def _run(jobs: Sequence[FrameJob], opts: ProcessOptions, workers: int, scheduler: Any, force: bool,
+         done: Callable[[dict[str, Any]], None], stop: Callable[[], bool] | None,
+         abort: Callable[[], Any] | None, scheduler_timeout: float) -> None:
     stop = stop or (lambda: False)
     abort = abort or (lambda: False)
     if scheduler is not None:
@@ -514,7 +502,6 @@ def run(jobs: Sequence[FrameJob], opts: ProcessOptions, *, workers: int = 1,
                  on_result=lambda job, r: done(r), on_lost=lost, stop=stop, abort=abort,
                  on_cancel=lambda job: done(_cancelled(job, _stopped(abort))),
                  preload=("polcam.process",), initializer=_init_worker)
-    return results
 
 
 def _frame_task(job: FrameJob, *, opts: ProcessOptions, force: bool) -> dict[str, Any]:

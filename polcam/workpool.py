@@ -189,65 +189,91 @@ def run_jobs(fn: Callable[[Any], Any], jobs: Iterable[Any], workers: int, *,
     try:
         while True:
             if abort():
-                for w in pool:
-                    if w.job is not None:
-                        job = w.job[1]
-                        w.job = None
-                        w.kill()
-                        if on_cancel is not None:
-                            on_cancel(job)
+                _cancel(pool, on_cancel)
                 return
             if not (exhausted and not again) and not stop():
-                for w in [w for w in pool if w.job is None] + [None] * (workers - len(pool)):
-                    if stop():
-                        break
-                    nxt = again.pop() if again else next(it, None)
-                    if nxt is None:
-                        exhausted = True
-                        break
-                    if w is None:
-                        w = _Worker(ctx, fn, blas_threads, initializer)
-                        pool.append(w)
-                    try:
-                        w.conn.send(nxt)
-                    except OSError:     # the idle worker had died: the job never started there
-                        again.append(nxt)
-                        pool.remove(w)
-                        w.kill()
-                        continue
-                    w.job = nxt
+                if _hand_out(pool, again, it, workers, stop, lambda: _Worker(ctx, fn, blas_threads, initializer)):
+                    exhausted = True
             busy = [w for w in pool if w.job is not None]
             if not busy:
                 if (again or not exhausted) and not stop():
                     continue        # a job to hand out again, or a worker to start
                 return
             ready = set(wait_ready([w.conn for w in busy] + [w.proc.sentinel for w in busy], timeout=poll))
-            for w in busy:
-                assert w.job is not None
-                if w.conn in ready:
-                    try:
-                        key, result = w.conn.recv()
-                    except (EOFError, OSError):
-                        pass            # died while sending: handled below as lost
-                    else:
-                        job = w.job[1]
-                        w.job = None
-                        on_result(job, result)
-                        continue
-                if w.proc.sentinel in ready or not w.proc.is_alive():
-                    w.proc.join(5)
-                    job = w.job[1]
-                    w.job = None
-                    pool.remove(w)
-                    w.close()
-                    on_lost(job, _describe_exit(w.proc.exitcode))
+            _collect(busy, ready, pool, on_result, on_lost)
     finally:
-        for w in pool:
-            if w.job is None and w.proc.is_alive():
-                try:
-                    w.conn.send(None)
-                except OSError:
-                    pass
-        for w in pool:
-            w.proc.join(2)
+        _shut_down(pool)
+
+
+def _cancel(pool: list[_Worker], on_cancel: Callable[[Any], None] | None) -> None:
+    """Kill the workers holding a job and report each job to ``on_cancel``."""
+    for w in pool:
+        if w.job is not None:
+            job = w.job[1]
+            w.job = None
             w.kill()
+            if on_cancel is not None:
+                on_cancel(job)
+
+
+def _hand_out(pool: list[_Worker], again: list[tuple[int, Any]], it: Any, workers: int, stop: Callable[[], bool],
+              make: Callable[[], _Worker]) -> bool:
+    """Give a job to every idle worker, starting workers up to ``workers``; True when the jobs ran out.
+
+    A job sent to an idle worker that had died never started: it goes to ``again``.
+    """
+    for w in [w for w in pool if w.job is None] + [None] * (workers - len(pool)):
+        if stop():
+            break
+        nxt = again.pop() if again else next(it, None)
+        if nxt is None:
+            return True
+        if w is None:
+            w = make()
+            pool.append(w)
+        try:
+            w.conn.send(nxt)
+        except OSError:     # the idle worker had died: the job never started there
+            again.append(nxt)
+            pool.remove(w)
+            w.kill()
+            continue
+        w.job = nxt
+    return False
+
+
+def _collect(busy: list[_Worker], ready: set[Any], pool: list[_Worker], on_result: Callable[[Any, Any], None],
+             on_lost: Callable[[Any, Lost], None]) -> None:
+    """Results of the busy workers that sent one; workers that ended without one are reported lost."""
+    for w in busy:
+        assert w.job is not None
+        if w.conn in ready:
+            try:
+                key, result = w.conn.recv()
+            except (EOFError, OSError):
+                pass            # died while sending: handled below as lost
+            else:
+                job = w.job[1]
+                w.job = None
+                on_result(job, result)
+                continue
+        if w.proc.sentinel in ready or not w.proc.is_alive():
+            w.proc.join(5)
+            job = w.job[1]
+            w.job = None
+            pool.remove(w)
+            w.close()
+            on_lost(job, _describe_exit(w.proc.exitcode))
+
+
+def _shut_down(pool: list[_Worker]) -> None:
+    """Tell the idle live workers to stop, then join (and kill) every worker."""
+    for w in pool:
+        if w.job is None and w.proc.is_alive():
+            try:
+                w.conn.send(None)
+            except OSError:
+                pass
+    for w in pool:
+        w.proc.join(2)
+        w.kill()

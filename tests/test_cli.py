@@ -126,8 +126,8 @@ def test_fixture_folder_exists():
 
 
 def test_docs_cli_md_is_up_to_date():
-    """docs/cli.md documents every command and flag: it is the parsers' own help."""
+    """docs/reference/cli.md documents every command and flag: it is the parsers' own help."""
     from polcam.cli import reference_markdown
 
-    doc = Path(__file__).resolve().parents[1] / "docs" / "cli.md"
-    assert doc.read_text() == reference_markdown(), "regenerate: python -m polcam.cli --markdown > docs/cli.md"
+    doc = Path(__file__).resolve().parents[1] / "docs" / "reference" / "cli.md"
+    assert doc.read_text() == reference_markdown(), "regenerate: python -m polcam.cli --markdown > docs/reference/cli.md"

@@ -1,6 +1,6 @@
 """The defaults the docs state are the registries' defaults.
 
-README.md and docs/cameras.md each hold one marked statement, a paragraph starting "Defaults:",
+README.md and docs/guide/process.md each hold one marked statement, a paragraph starting "Defaults:",
 naming the separation default for colour and mono stacks and the demosaicing default for colour
 and mono layouts; it must name what `polcam.separation.default_method` and
 `polcam.demosaicing.default_method` return. Flags documented with a default method must agree too.
@@ -34,7 +34,7 @@ def _registry() -> tuple[str, str, str, str]:
             demosaic_default("imx250mzr"))
 
 
-@pytest.mark.parametrize("doc", ["README.md", "docs/cameras.md"])
+@pytest.mark.parametrize("doc", ["README.md", "docs/guide/process.md"])
 def test_the_stated_defaults_are_the_registrys(doc):
     found = _STATEMENT.findall(_text(doc))
     assert len(found) == 1, f"{doc}: expected one 'Defaults: separation `A` for colour stacks, ...' statement"
@@ -48,7 +48,7 @@ def test_the_statement_parser_catches_a_wrong_default():
     assert found != _registry() and found[0] == "imin"
 
 
-@pytest.mark.parametrize("doc", ["README.md", "docs/cameras.md"])
+@pytest.mark.parametrize("doc", ["README.md", "docs/guide/process.md"])
 def test_no_flag_is_documented_with_another_default_method(doc):
     # "`--separate imin` (default)" or "--method NAME (default `NAME`)": a default method named
     # beside a method flag must be one of the registries' defaults

@@ -6,7 +6,11 @@ the ``imin`` layers) from the (calibrated) mosaic; other separation methods
 run on their own thread through the pipeline's full route
 (:func:`polcam.pipeline.to_stack` at cell resolution, then
 :func:`polcam.pipeline.separate_layers`) on the newest frame whenever the
-previous run is done.  Results go to a Rerun sink (:mod:`polcam.sinks.rerun`).
+previous run is done.  Results go to a sink (:class:`polcam.sinks.base.Sink`,
+e.g. :class:`polcam.sinks.rerun.RerunSink`) as :class:`polcam.sinks.base.Record`
+objects: per processed frame one with the raw ``frame`` and the ``s0``,
+``dolp``, ``aolp`` products (the ``imin`` layers too), one per separation with
+``diffuse`` and ``specular``, and ``stats`` records for the live plots.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 from polcam.frame import Frame
 from polcam.mosaic import Layout
 from polcam.pipeline import calibrate, live_maps, separate_layers, to_stack
+from polcam.sinks.base import Record, Sink
 
 if TYPE_CHECKING:
     from polcam.calibration.store import Calibration
@@ -141,7 +146,9 @@ class LiveProcessor:
     layout
         Layout of the frames (the camera's delivered layout).
     sink
-        A :class:`polcam.sinks.rerun.RerunSink`, or ``None``.
+        Where the live results go (:class:`polcam.sinks.base.Sink`, e.g. a
+        :class:`polcam.sinks.rerun.RerunSink`), or ``None``.  It is logged
+        to from the live and separation threads; the caller closes it.
     separate
         Separation method for the diffuse/specular layers, or ``None``.
         ``imin`` is computed on the live thread from the live maps (every
@@ -159,8 +166,8 @@ class LiveProcessor:
         first separated frame and pass that estimate to every later one (:attr:`held_illuminant`).
         A scene's light does not change from frame to frame, but its estimate does with the noise:
         re-estimated each frame it flipped between two decisions on one of six noisy frames of a
-        static synthetic scene, and the whole diffuse layer with it (docs/algorithm.md,
-        "Frame-to-frame stability").  ``False``: estimate on every frame.
+        static synthetic scene, and the whole diffuse layer with it (docs/methods/polarized-residual.md,
+        "Stability").  ``False``: estimate on every frame.
     counters
         Shared frame rate / dropped / incomplete numbers to plot.
     workers
@@ -175,7 +182,7 @@ class LiveProcessor:
         mosaic logged to ``/camera/raw`` stays as the camera sent it.
     """
 
-    def __init__(self, layout: Layout, *, sink: Any = None, separate: str | None = None,
+    def __init__(self, layout: Layout, *, sink: Sink | None = None, separate: str | None = None,
                  separate_options: dict[str, Any] | None = None,
                  counters: Counters | None = None, workers: int = 2,
                  calibration: Calibration | None = None, hold_illuminant: bool = True) -> None:
@@ -277,14 +284,14 @@ class LiveProcessor:
         view = self.corrected(frame)
         maps = live_maps(view.mosaic, self.layout, black_level=view.black_level,
                          white_level=view.white_level)
-        sink = self.sink
-        if sink is not None:  # RERUN SINK call site (capture live view)
-            sink.log_raw(index, ts, frame.mosaic, bit_depth=frame.bit_depth)  # raw is raw
-            # S0 = 2 Ic
-            sink.log_polarization(index, ts, s0=maps.ic, dolp=maps.dolp, aolp=maps.aolp, scale=2 * maps.scale)
+        if self.sink is not None:  # the raw frame as sent; S0 = 2 Ic
+            products = {"s0": maps.ic, "dolp": maps.dolp, "aolp": maps.aolp}
+            scale = {"s0": 2 * maps.scale}
+            if self.method == "imin":
+                products.update(diffuse=maps.diffuse, specular=maps.specular)
+                scale.update(diffuse=maps.scale, specular=maps.scale)
+            self.sink.log(index, Record(frame=frame, products=products, scale=scale, timestamp_ns=ts))
         if self.method == "imin":
-            if sink is not None:
-                sink.log_layers(index, ts, diffuse=maps.diffuse, specular=maps.specular, scale=maps.scale)
             with self._lock:
                 self.separations += 1
                 self._layers_rate.tick()
@@ -301,8 +308,8 @@ class LiveProcessor:
         c = self.counters
         with c.lock:
             fps, dropped, incomplete = c.fps, c.dropped, c.incomplete
-        self.sink.log_stats(index, ts, fps=fps, dropped=dropped, incomplete=incomplete,  # RERUN SINK call site
-                            maps_fps=maps_fps, layers_fps=layers_fps)
+        self.sink.log(index, Record(stats={"fps": fps, "dropped": dropped, "incomplete": incomplete,
+                                           "maps_fps": maps_fps, "layers_fps": layers_fps}, timestamp_ns=ts))
 
     def _run_separation(self) -> None:
         _lower_priority(SEPARATION_NICENESS)
@@ -324,14 +331,16 @@ class LiveProcessor:
                 self.separation_seconds.append(dt)
                 if self._hold and self.held_illuminant is None:
                     self._hold_from(res.info)
-                if self.sink is not None:  # RERUN SINK call site (separation layers)
-                    ts = frame.metadata.get("timestamp_ns")
-                    self.sink.log_layers(index, ts, diffuse=res.diffuse, specular=res.specular)
+                ts = frame.metadata.get("timestamp_ns")
+                if self.sink is not None:
+                    self.sink.log(index, Record(products={"diffuse": res.diffuse, "specular": res.specular},
+                                                timestamp_ns=ts))
                 with self._lock:
                     self.separations += 1
                     layers_fps = self._layers_rate.tick()
                 if self.sink is not None:
-                    self.sink.log_stats(index, ts, separation_seconds=dt, layers_fps=layers_fps)
+                    self.sink.log(index, Record(stats={"separation_seconds": dt, "layers_fps": layers_fps},
+                                                timestamp_ns=ts))
             except Exception as exc:  # noqa: BLE001 - reported, live view goes on
                 if self.separation_abandoned:  # its workers were stopped with the capture
                     return

@@ -9,6 +9,12 @@ Threads of a capture::
         live thread --(one-slot mailbox)--> separation thread: the chosen method on the
             newest frame whenever the previous separation is done
 
+Both ends are sinks (:class:`polcam.sinks.base.Sink`): the frame sinks (the
+saver, and any passed as ``sinks``) are logged every frame received, on the
+capture loop's thread; the live sinks (Rerun, ``Capture(live_sink=...)``) the
+live view's maps, layers and statistics, on the live threads.  :class:`Capture`
+closes them all once when it ends, however it ends.
+
 Nothing the capture does blocks acquisition: the camera's own thread only
 ever drops frames into its queue (a full queue drops the frame and counts
 it).  Saving is lossless for every frame the capture loop takes: when the
@@ -61,11 +67,11 @@ Faults:
 
 from __future__ import annotations
 
-import json
+import contextlib
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -73,25 +79,25 @@ import numpy as np
 
 from polcam._hashing import sha256_file
 from polcam.acquisition.live import Counters, LiveProcessor
+from polcam.acquisition.options import ON_WRITE_ERROR, CaptureOptions, StopRequest
 from polcam.acquisition.saving import (
     SAVE_FORMATS,
     FrameSaver,
     check_writable,
     clean_stale,
     existing_frames,
-    os_reason,
 )
-from polcam.camera.base import Camera, CameraDisconnectedError, FrameTimeout
+from polcam.acquisition.summary import summarize, write_summary
+from polcam.camera.base import Camera, CameraDisconnectedError, CapturedFrame, FrameTimeout
 from polcam.errors import LayoutError, MethodError, PolcamError
 from polcam.frame import Frame
+from polcam.sinks.base import FanOut, Record, Sink
 
 if TYPE_CHECKING:
     from polcam.calibration.store import Calibration
 
-__all__ = ["ON_WRITE_ERROR", "StopRequest", "run_capture", "write_summary"]
+__all__ = ["ON_WRITE_ERROR", "Capture", "CaptureOptions", "StopRequest", "run_capture", "write_summary"]
 
-#: What a capture does when a frame cannot be written: stop, or go on with the live view only.
-ON_WRITE_ERROR: tuple[str, ...] = ("stop", "continue-live")
 
 def _check_calibration(calibration: Calibration, camera: Camera) -> tuple[str | None, str | None]:
     """Refuse a calibration of another layout than the camera sends; (file, SHA-256) to record.
@@ -130,48 +136,388 @@ def _refusal(calibration: Calibration, frame: Frame, camera_id: str) -> PolcamEr
     return None
 
 
-class StopRequest(threading.Event):
-    """An event that also says why the capture should stop (``reason``)."""
+class Capture:
+    """One capture run: :meth:`prepare` (checks, sinks), :meth:`loop` (frames), :meth:`summary`.
 
-    def __init__(self) -> None:
-        super().__init__()
-        self.reason = "stop requested"
+    :meth:`run` does all three and writes the summary; :func:`run_capture` is
+    the same as one call.  The capture owns its sinks: the frame sinks (the
+    :class:`polcam.acquisition.saving.FrameSaver` of ``options.out`` and
+    ``sinks``) get every frame received, the live sink (a
+    :class:`polcam.sinks.rerun.RerunSink` for ``options.rerun``, or ``live_sink``)
+    the live view's maps, layers and statistics; all are closed once when
+    the capture ends, however it ends.
 
-    def request(self, reason: str) -> None:
-        """Set the event, keeping the first reason given."""
-        if not self.is_set():
-            self.reason = reason
-        self.set()
+    Parameters
+    ----------
+    camera
+        Open and configured (not started) camera.
+    options
+        What to do (:class:`CaptureOptions`).
+    stop, abort
+        Set ``stop`` to end the capture cleanly (signals do); set ``abort`` as
+        well to drop frames still waiting to be written.
+    progress
+        Called about once a second with the running counters, and with
+        ``{"message": ...}`` for notices and errors.
+    calibration
+        A calibration of this camera (:func:`polcam.calibration.load_calibration`),
+        or ``None``.  The first frame is checked against it before anything
+        is saved; the live view (maps and separation) is computed from the
+        corrected mosaic, while the saved frames stay exactly as the camera
+        sent them.
+    sinks
+        More sinks (:class:`polcam.sinks.base.Sink`) that get every frame
+        received, as a :class:`polcam.sinks.base.Record` with ``frame`` and
+        ``timestamp_ns``, at its capture index, from the capture's thread.
+    live_sink
+        A sink for the live view besides (or instead of) ``options.rerun``'s.
+    """
+
+    def __init__(self, camera: Camera, options: CaptureOptions, *, stop: threading.Event | None = None,
+                 abort: threading.Event | None = None, progress: Callable[[dict[str, Any]], None] | None = None,
+                 calibration: Calibration | None = None, sinks: Sequence[Sink] = (),
+                 live_sink: Sink | None = None) -> None:
+        self.camera = camera
+        self.options = options
+        self.stop = stop or threading.Event()
+        self.abort = abort or threading.Event()
+        self.progress = progress
+        self.calibration = calibration
+        self.separate = options.separate
+        self.separate_options = dict(options.separate_options or {})
+        self.out = None if options.out is None else Path(options.out)
+        self.frame_sinks = FanOut(sinks)
+        self.live_sinks = FanOut([live_sink])
+        self.saver: FrameSaver | None = None
+        self.live: LiveProcessor | None = None
+        self.counters = Counters()
+        self.cal_file: str | None = None
+        self.cal_sha: str | None = None
+        self.first_index = 0
+        self.stale = 0
+        self.created_out = False
+        self.new_rrd: Path | None = None  # a recording this capture creates (removed if the calibration refuses)
+        self.received = 0
+        self.refused: PolcamError | None = None
+        self.reason = "running"
+        self.error: str | None = None
+        self.t_start = self.t_end = time.monotonic()
+        self._arrivals: deque[float] = deque()
+        self._save_failed_seen = False
+        self._closed = False
+
+    # ------------------------------------------------------------- prepare
+    def prepare(self) -> None:
+        """Check everything before the camera starts; create the saver, the live view and the sinks.
+
+        Raises
+        ------
+        CalibrationError, LayoutError, MethodError, FrameWriteError
+            As :func:`run_capture`; nothing is captured.
+        """
+        from polcam.errors import FrameWriteError
+
+        opts = self.options
+        if opts.save_format not in SAVE_FORMATS:
+            raise FrameWriteError(f"save format {opts.save_format!r}: expected one of {', '.join(SAVE_FORMATS)}")
+        if opts.on_write_error not in ON_WRITE_ERROR:
+            raise FrameWriteError(f"on_write_error {opts.on_write_error!r}: expected one of "
+                                  f"{', '.join(ON_WRITE_ERROR)}")
+        self._resolve_separation()
+        if self.calibration is not None:
+            self.cal_file, self.cal_sha = _check_calibration(self.calibration, self.camera)
+        if self.out is not None:
+            self._prepare_out()
+        self._open_sinks()
+
+    def _resolve_separation(self) -> None:
+        """The live separation method (``"default"`` resolved) and its options, checked."""
+        layout = self.camera.layout
+        separate, separate_options = self.separate, self.separate_options
+        if separate == "default" and layout is None and self.options.rerun is None:
+            # frames of an unknown layout are still saved as sent (process can be given --layout);
+            # only an explicit --separate METHOD or --rerun needs the layout now
+            separate = None
+            self._say(f"camera {self.camera.camera_id}: polarizer layout unknown, so no live layers "
+                      "(give --layout for them); the frames are saved as sent")
+        if self._live_wanted(separate) and layout is None:
+            raise LayoutError(
+                f"camera {self.camera.camera_id} sends frames without a known polarizer layout: give --layout "
+                "(imx250mzr, imx250myr, mono:A,B,C,D, color:A,B,C,D:BAYER), or --separate none without --rerun"
+            )
+        if separate == "default" and layout is not None:  # the registry's default for the sensor
+            from polcam.separation import default_method
+
+            separate = default_method("stack" if layout.is_color else "mono-stack")
+        if separate_options and separate is None:
+            raise MethodError(f"separation options {sorted(separate_options)} given without a separation method")
+        if separate is not None:
+            from polcam.separation import method_spec
+            from polcam.separation._registry import check_options
+
+            if separate == "imin" and separate_options:  # computed from the live maps, not by separate()
+                raise MethodError(f"the live imin layers take no options; got {sorted(separate_options)}")
+            spec = method_spec(separate)
+            check_options(separate, dict(separate_options or {}))
+            if layout is not None and not layout.is_color and not spec.mono:
+                from polcam.separation import methods
+
+                raise MethodError(
+                    f"separation method {separate!r} needs a colour sensor; camera layout is {layout}; "
+                    f"for mono use one of {', '.join(m for m in methods() if method_spec(m).mono)} or none"
+                )
+        self.separate = separate
+
+    def _live_wanted(self, separate: str | None) -> bool:
+        return self.options.rerun is not None or bool(self.live_sinks) or separate is not None
+
+    def _prepare_out(self) -> None:
+        """Before the camera starts: a folder that cannot take frames is refused now."""
+        from polcam.errors import FrameWriteError
+
+        out = self.out
+        assert out is not None
+        self.created_out = not out.exists()
+        check_writable(out)
+        self.stale = clean_stale(out)
+        existing = existing_frames(out)
+        if existing and not self.options.append:
+            raise FrameWriteError(
+                f"output folder already holds {len(existing)} captured frame(s); choose another --out "
+                "or pass --append to continue the numbering", path=out,
+            )
+        self.first_index = existing[-1] + 1 if existing else 0
+
+    def _open_sinks(self) -> None:
+        """The Rerun sink (before any thread starts: a viewer that cannot start is a plain error), the
+        saver and the live view."""
+        opts = self.options
+        rerun = opts.rerun
+        if rerun is not None:
+            from polcam.sinks.rerun import RerunSink
+
+            if str(rerun) not in ("spawn", "serve") and not Path(rerun).exists():
+                self.new_rrd = Path(rerun)
+            sink = RerunSink(rerun, raw_every=opts.raw_every, view_scale=opts.view_scale, bind=opts.rerun_bind,
+                             port=opts.rerun_port)
+            self.live_sinks.sinks.insert(0, sink)
+            if sink.server is not None:
+                self._say(sink.server.message())
+        if self.out is not None:
+            self.saver = FrameSaver(self.out, SAVE_FORMATS[opts.save_format], workers=opts.save_workers,
+                                    queue_frames=opts.save_queue, abort=self.abort)
+            self.frame_sinks.sinks.insert(0, self.saver)
+        if self._live_wanted(self.separate):
+            layout = self.camera.layout
+            assert layout is not None
+            self.live = LiveProcessor(layout, sink=self.live_sinks if self.live_sinks else None,
+                                      separate=self.separate, separate_options=self.separate_options,
+                                      counters=self.counters, workers=opts.live_workers,
+                                      calibration=self.calibration, hold_illuminant=opts.hold_illuminant)
+
+    def _say(self, message: str) -> None:
+        if self.progress is not None:
+            self.progress({"message": message})
+
+    # ---------------------------------------------------------------- loop
+    def loop(self) -> None:
+        """Start the camera, hand its frames on until a stop condition, stop it; close the sinks.
+
+        Sets :attr:`reason` (the stop reason), :attr:`error`, :attr:`refused`
+        (a calibration refusal) and the counts the summary reports.
+        """
+        reads = None
+        loop_done = False
+        try:
+            self.camera.start()
+            self.t_start = last_progress = last_stats = time.monotonic()
+            reads = self.camera.poll_frames(poll=0.1, idle_timeout=self.options.idle_timeout,
+                                            software_trigger=self.options.software_trigger)
+            while self._stop_reason() is None:
+                frame = self._next(reads)
+                if self.reason != "running":
+                    break
+                now = time.monotonic()
+                if frame is not None and not self._take(frame, now):
+                    break
+                if now - last_stats >= 0.5:  # the live view's statistics plots
+                    self._count_stats()
+                    last_stats = now
+                if self.progress is not None and now - last_progress >= 1.0:
+                    self._report(now)
+                    last_progress = now
+            loop_done = True
+        finally:
+            self.t_end = time.monotonic()
+            if reads is not None:
+                reads.close()
+            self.camera.stop()
+            try:
+                if loop_done:
+                    self._take_leftovers()
+            finally:
+                self._close()
+
+    def _stop_reason(self) -> str | None:
+        """Why the loop stops before the next read (also set as :attr:`reason`), or ``None``."""
+        opts = self.options
+        if self.reason != "running":
+            return self.reason
+        if self._write_failed():
+            return self.reason
+        if self.stop.is_set():
+            self.reason = getattr(self.stop, "reason", "stop requested")
+        elif opts.frames is not None and self.received >= opts.frames:
+            self.reason = "frames"
+        elif opts.duration is not None and time.monotonic() - self.t_start >= opts.duration:
+            self.reason = "duration"
+        return None if self.reason == "running" else self.reason
+
+    def _write_failed(self) -> bool:
+        """React once to the saver's first failed write; True when that stops the capture."""
+        saver = self.saver
+        if saver is None or not saver.failed_event.is_set() or self._save_failed_seen:
+            return False
+        self._save_failed_seen = True
+        werr = saver.write_error or {}
+        why = werr.get("reason", "unknown reason")
+        what = f"writing frames to {self.out} failed: {why}"
+        if self.options.on_write_error == "stop":
+            self.reason = f"write failed: {self.out}: {why}"
+            self.error = f"{what} (frame {werr.get('file')}); capture stopped"
+            self._say(f"{what}; stopping the capture")
+            return True
+        self.error = f"{what} (frame {werr.get('file')}); saving stopped, live view went on"
+        self._say(f"{what}; frames are no longer saved, the live view goes on")
+        return False
+
+    def _next(self, reads: Iterator[CapturedFrame | None]) -> CapturedFrame | None:
+        """The next frame, or ``None`` after an empty wait; at the end of the stream or a fault
+        sets :attr:`reason` (and :attr:`error`)."""
+        try:
+            return next(reads)
+        except StopIteration:
+            self.reason = "end of stream"
+        except FrameTimeout as exc:
+            self.reason = "timeout"
+            self.error = str(exc)
+        except CameraDisconnectedError as exc:
+            self.reason = f"camera disconnected: {self.camera.lost or exc}"
+            self.error = str(exc)
+            self._say(f"{exc}; stopping the capture")
+        return None
+
+    def _take(self, frame: CapturedFrame, now: float) -> bool:
+        """Hand a received frame to the frame sinks and the live view; False when the calibration
+        refuses the first one (nothing saved or shown yet)."""
+        if self.calibration is not None and self.received == 0:
+            self.refused = _refusal(self.calibration, frame, self.camera.camera_id)
+            if self.refused is not None:
+                self.reason = "calibration refused"
+                return False
+        index = self._log_frame(frame)
+        arrivals = self._arrivals
+        arrivals.append(now)
+        while arrivals and now - arrivals[0] > 1.0:
+            arrivals.popleft()
+        if self.live is not None:
+            self.live.offer(index, frame)
+        return True
+
+    def _log_frame(self, frame: CapturedFrame) -> int:
+        """Number a received frame and log it to the frame sinks (the saver waits for room; a frame it
+        cannot take is counted unsaved); returns its index."""
+        index = self.first_index + self.received
+        self.received += 1
+        if self.frame_sinks:
+            self.frame_sinks.log(index, Record(frame=frame, timestamp_ns=frame.metadata.get("timestamp_ns")))
+        return index
+
+    def _count_stats(self) -> None:
+        st = self.camera.stats()
+        with self.counters.lock:
+            self.counters.fps = float(len(self._arrivals))
+            self.counters.dropped = st.dropped
+            self.counters.incomplete = st.incomplete
+
+    def _report(self, now: float) -> None:
+        assert self.progress is not None
+        arrivals = self._arrivals
+        while arrivals and now - arrivals[0] > 1.0:
+            arrivals.popleft()
+        st = self.camera.stats()
+        self.progress({"received": self.received, "fps": float(len(arrivals)), "dropped": st.dropped,
+                       "incomplete": st.incomplete, "saved": len(self.saver.saved) if self.saver else 0,
+                       "processed": self.live.processed if self.live else 0})
+
+    def _take_leftovers(self) -> None:
+        """Frames delivered before acquisition stopped, not yet read: logged, or counted unread
+        (the ``frames`` count reached, ``abort``, a calibration refusal)."""
+        left = self.camera.take_queued()
+        if left and self.refused is None and self.reason != "frames" and not self.abort.is_set():
+            for frame in left:
+                self._log_frame(frame)
+        else:
+            self.camera.unread(len(left))
+
+    def _close(self) -> None:
+        """Stop the live view, then close the frame sinks and the live sinks (once, each even when
+        another fails)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self.live is not None:  # the newest frame finished on a planned end; on a stop or a fault, not waited for
+                self.live.close(finish=not self.stop.is_set()
+                                and self.reason in ("frames", "duration", "end of stream"))
+        finally:
+            try:
+                self.frame_sinks.close()
+            finally:
+                self.live_sinks.close()
+
+    # ------------------------------------------------------------- summary
+    def summary(self) -> dict[str, Any]:
+        """The capture's summary (the keys :func:`run_capture` lists, :func:`polcam.acquisition.summary.summarize`);
+        not written anywhere."""
+        return summarize(self)
+
+    # ----------------------------------------------------------------- run
+    def run(self) -> dict[str, Any]:
+        """:meth:`prepare`, :meth:`loop`, :meth:`summary`; the summary written to ``out``.
+
+        Raises
+        ------
+        CalibrationError
+            The first frame does not fit the calibration: nothing was saved,
+            no summary is written, and an output folder or ``.rrd`` file this
+            capture created is removed again.
+        """
+        try:
+            self.prepare()
+            self.loop()
+        finally:
+            self._close()
+        if self.refused is not None:
+            for leftover, remove in ((self.out if self.created_out else None, Path.rmdir),
+                                     (self.new_rrd, Path.unlink)):
+                if leftover is not None:
+                    with contextlib.suppress(OSError):
+                        remove(leftover)  # the folder is empty, the recording holds no frame
+            raise self.refused
+        summary = self.summary()
+        if self.out is not None:
+            write_summary(summary, self.out)
+        return summary
 
 
-def run_capture(
-    camera: Camera,
-    *,
-    out: Path | None,
-    frames: int | None = None,
-    duration: float | None = None,
-    save_format: str = "raw",
-    separate: str | None = "imin",
-    separate_options: dict[str, Any] | None = None,
-    rerun: str | Path | None = None,
-    stop: threading.Event | None = None,
-    abort: threading.Event | None = None,
-    idle_timeout: float | None = 10.0,
-    software_trigger: bool = False,
-    append: bool = False,
-    save_workers: int = 4,
-    save_queue: int = 16,
-    raw_every: int = 10,
-    view_scale: float = 0.5,
-    live_workers: int = 2,
-    progress: Callable[[dict[str, Any]], None] | None = None,
-    calibration: Calibration | None = None,
-    rerun_bind: str = "127.0.0.1",
-    rerun_port: int = 9090,
-    hold_illuminant: bool = True,
-    on_write_error: str = "stop",
-) -> dict[str, Any]:
+def run_capture(camera: Camera, *, out: Path | None, stop: threading.Event | None = None,
+                abort: threading.Event | None = None, progress: Callable[[dict[str, Any]], None] | None = None,
+                calibration: Calibration | None = None, sinks: Sequence[Sink] = (),
+                **options: Any) -> dict[str, Any]:
     """Capture from an open, configured camera until a stop condition; return the summary.
+
+    ``Capture(camera, CaptureOptions(out=out, **options), ...).run()``.
 
     Parameters
     ----------
@@ -180,59 +526,14 @@ def run_capture(
     out
         Folder for the frames and ``summary.json`` (created); ``None``:
         nothing is saved (live view only).
-    frames, duration
-        Stop after this many good frames / seconds (``None``: until the source
-        ends or ``stop`` is set).
-    save_format
-        One of :data:`SAVE_FORMATS`.
-    separate
-        Separation method for the live layers, ``"default"`` (the registry's
-        default for the camera's layout, :func:`polcam.separation.default_method`)
-        or ``None``.
-    separate_options
-        Keyword options of that method, checked against it before the camera
-        starts (e.g. ``{"device": "cuda"}``); recorded in the summary.
-    rerun
-        ``"spawn"``, ``"serve"``, a ``.rrd`` path, or ``None`` (no live view).
-    stop, abort
-        Set ``stop`` to end the capture cleanly (signals do); set ``abort`` as
-        well to drop frames still waiting to be written.
-    idle_timeout
-        End with an error when no frame arrives for this many seconds.
-    software_trigger
-        Fire the camera's software trigger for each frame (one at a time).
-    append
-        Allow an ``out`` folder that already holds frames (numbering continues).
-    save_workers, save_queue
-        Writer threads and their queue length.
-    raw_every
-        Log the full-resolution raw mosaic to Rerun every this many processed frames.
-    view_scale
-        Size factor of the maps logged to Rerun (0.5: half the polarizer-cell resolution).
-    live_workers
-        Threads of the live view (each processes the newest frame when free).
-    progress
-        Called about once a second with the running counters.
-    calibration
-        A calibration of this camera (:func:`polcam.calibration.load_calibration`),
-        or ``None``.  The first frame is checked against it before anything
-        is saved; the live view (maps and separation) is computed from the
-        corrected mosaic, while the saved frames stay exactly as the camera
-        sent them.
-    rerun_bind, rerun_port
-        ``rerun="serve"``: address and port of the web viewer (the data on
-        port + 1); see :class:`polcam.sinks.rerun.WebServer`.
-    hold_illuminant
-        Estimate the illuminant on the first separated frame and keep it for the later ones, for
-        a method that estimates it and was given none
-        (:class:`polcam.acquisition.live.LiveProcessor`); recorded as
-        ``separation_illuminant_held``.  ``False``: estimate on every frame.
-    on_write_error
-        ``"stop"``: a failed frame write stops the capture at once (stop
-        reason ``write failed: FOLDER: REASON``); ``"continue-live"``: saving
-        stops (later frames counted ``frames_unsaved``) and the capture and
-        its live view go on.  Either way ``write_error`` records the first
-        failure and ``progress`` gets a message naming the folder and reason.
+    stop, abort, progress, calibration, sinks
+        As :class:`Capture`.
+    **options
+        The other fields of :class:`CaptureOptions` (``frames``, ``duration``,
+        ``save_format``, ``separate``, ``separate_options``, ``rerun``,
+        ``idle_timeout``, ``software_trigger``, ``append``, ``save_workers``,
+        ``save_queue``, ``raw_every``, ``view_scale``, ``live_workers``,
+        ``rerun_bind``, ``rerun_port``, ``hold_illuminant``, ``on_write_error``).
 
     Returns
     -------
@@ -251,6 +552,8 @@ def run_capture(
 
     Raises
     ------
+    TypeError
+        A keyword that is not a field of :class:`CaptureOptions`.
     CalibrationError
         The calibration does not fit the layout the camera sends, or its
         first frame (size, layout, camera id, ROI, mirroring; with a dark,
@@ -266,310 +569,6 @@ def run_capture(
         cannot be created or written (read-only, permissions, a full disk):
         checked before the camera starts, nothing is captured.
     """
-    from polcam.errors import FrameWriteError
-
-    if save_format not in SAVE_FORMATS:
-        raise FrameWriteError(f"save format {save_format!r}: expected one of {', '.join(SAVE_FORMATS)}")
-    if on_write_error not in ON_WRITE_ERROR:
-        raise FrameWriteError(f"on_write_error {on_write_error!r}: expected one of {', '.join(ON_WRITE_ERROR)}")
-    stop = stop or threading.Event()
-    abort = abort or threading.Event()
-    layout = camera.layout
-    if separate == "default" and layout is None and rerun is None:
-        # frames of an unknown layout are still saved as sent (process can be given --layout);
-        # only an explicit --separate METHOD or --rerun needs the layout now
-        separate = None
-        if progress is not None:
-            progress({"message": f"camera {camera.camera_id}: polarizer layout unknown, so no live layers "
-                                 "(give --layout for them); the frames are saved as sent"})
-    live_wanted = rerun is not None or separate is not None
-    if live_wanted and layout is None:
-        raise LayoutError(
-            f"camera {camera.camera_id} sends frames without a known polarizer layout: give --layout "
-            "(imx250mzr, imx250myr, mono:A,B,C,D, color:A,B,C,D:BAYER), or --separate none without --rerun"
-        )
-    if separate == "default" and layout is not None:  # the registry's default for the sensor
-        from polcam.separation import default_method
-
-        separate = default_method("stack" if layout.is_color else "mono-stack")
-    if separate_options and separate is None:
-        raise MethodError(f"separation options {sorted(separate_options)} given without a separation method")
-    if separate is not None:
-        from polcam.separation import method_spec
-        from polcam.separation._registry import check_options
-
-        if separate == "imin" and separate_options:  # computed from the live maps, not by separate()
-            raise MethodError(f"the live imin layers take no options; got {sorted(separate_options)}")
-        spec = method_spec(separate)
-        check_options(separate, dict(separate_options or {}))
-        if layout is not None and not layout.is_color and not spec.mono:
-            from polcam.separation import methods
-
-            raise MethodError(
-                f"separation method {separate!r} needs a colour sensor; camera layout is {layout}; "
-                f"for mono use one of {', '.join(m for m in methods() if method_spec(m).mono)} or none"
-            )
-    cal_file: str | None = None
-    cal_sha: str | None = None
-    if calibration is not None:
-        cal_file, cal_sha = _check_calibration(calibration, camera)
-    first_index = 0
-    stale = 0
-    created_out = False
-    if out is not None:
-        out = Path(out)
-        created_out = not out.exists()
-        check_writable(out)  # before the camera starts: a folder that cannot take frames is refused now
-        stale = clean_stale(out)
-        existing = existing_frames(out)
-        if existing and not append:
-            raise FrameWriteError(
-                f"output folder already holds {len(existing)} captured frame(s); choose another --out "
-                "or pass --append to continue the numbering", path=out,
-            )
-        first_index = existing[-1] + 1 if existing else 0
-
-    counters = Counters()
-    sink = None
-    new_rrd = None  # a recording file this capture creates (removed again if the calibration refuses)
-    if rerun is not None and str(rerun) not in ("spawn", "serve") and not Path(rerun).exists():
-        new_rrd = Path(rerun)
-    if rerun is not None:  # RERUN SINK created; before any thread starts: a viewer that cannot start is a plain error
-        from polcam.sinks.rerun import RerunSink
-
-        sink = RerunSink(rerun, raw_every=raw_every, view_scale=view_scale, bind=rerun_bind, port=rerun_port)
-        if sink.server is not None and progress is not None:
-            progress({"message": sink.server.message()})
-    saver: FrameSaver | None = None
-    if out is not None:
-        saver = FrameSaver(out, SAVE_FORMATS[save_format], workers=save_workers, queue_frames=save_queue)
-    live: LiveProcessor | None = None
-    if live_wanted:
-        assert layout is not None
-        live = LiveProcessor(layout, sink=sink, separate=separate, separate_options=separate_options,
-                             counters=counters, workers=live_workers,
-                             calibration=calibration, hold_illuminant=hold_illuminant)
-
-    received = 0
-    refused: PolcamError | None = None
-    reason = "running"
-    error: str | None = None
-    arrivals: deque[float] = deque()
-    t_start = time.monotonic()
-    last_progress = last_stats = t_start
-    reads = None
-    loop_done = False
-    save_failed_seen = False
-    try:
-        camera.start()
-        t_start = last_progress = last_stats = time.monotonic()
-        reads = camera.poll_frames(poll=0.1, idle_timeout=idle_timeout, software_trigger=software_trigger)
-        while True:
-            now = time.monotonic()
-            if saver is not None and saver.failed_event.is_set() and not save_failed_seen:
-                save_failed_seen = True
-                werr = saver.write_error or {}
-                what = f"writing frames to {out} failed: {werr.get('reason', 'unknown reason')}"
-                if on_write_error == "stop":
-                    reason = f"write failed: {out}: {werr.get('reason', 'unknown reason')}"
-                    error = f"{what} (frame {werr.get('file')}); capture stopped"
-                    if progress is not None:
-                        progress({"message": f"{what}; stopping the capture"})
-                    break
-                error = f"{what} (frame {werr.get('file')}); saving stopped, live view went on"
-                if progress is not None:
-                    progress({"message": f"{what}; frames are no longer saved, the live view goes on"})
-            if stop.is_set():
-                reason = getattr(stop, "reason", "stop requested")
-                break
-            if frames is not None and received >= frames:
-                reason = "frames"
-                break
-            if duration is not None and now - t_start >= duration:
-                reason = "duration"
-                break
-            try:
-                frame = next(reads)
-            except StopIteration:
-                reason = "end of stream"
-                break
-            except FrameTimeout as exc:
-                reason = "timeout"
-                error = str(exc)
-                break
-            except CameraDisconnectedError as exc:
-                reason = f"camera disconnected: {camera.lost or exc}"
-                error = str(exc)
-                if progress is not None:
-                    progress({"message": f"{exc}; stopping the capture"})
-                break
-            now = time.monotonic()
-            if frame is not None:
-                if calibration is not None and received == 0:
-                    refused = _refusal(calibration, frame, camera.camera_id)
-                    if refused is not None:  # nothing saved or shown yet
-                        reason = "calibration refused"
-                        break
-                index = first_index + received
-                received += 1
-                arrivals.append(now)
-                while arrivals and now - arrivals[0] > 1.0:
-                    arrivals.popleft()
-                if saver is not None and not saver.put(index, frame, abort=abort):
-                    pass  # aborted: counted as unsaved by the saver
-                if live is not None:
-                    live.offer(index, frame)
-            if now - last_stats >= 0.5:  # the live view's statistics plots
-                st = camera.stats()
-                with counters.lock:
-                    counters.fps = float(len(arrivals))
-                    counters.dropped = st.dropped
-                    counters.incomplete = st.incomplete
-                last_stats = now
-            if progress is not None and now - last_progress >= 1.0:
-                while arrivals and now - arrivals[0] > 1.0:
-                    arrivals.popleft()
-                st = camera.stats()
-                progress({"received": received, "fps": float(len(arrivals)), "dropped": st.dropped,
-                          "incomplete": st.incomplete,
-                          "saved": len(saver.saved) if saver else 0,
-                          "processed": live.processed if live else 0})
-                last_progress = now
-        loop_done = True
-    finally:
-        t_end = time.monotonic()
-        if reads is not None:
-            reads.close()
-        camera.stop()
-        if loop_done:  # frames delivered before acquisition stopped, not yet read
-            left = camera.take_queued()
-            if left and refused is None and reason != "frames" and not abort.is_set():
-                for frame in left:
-                    index = first_index + received
-                    received += 1
-                    if saver is not None:
-                        saver.put(index, frame, abort=abort)
-            else:
-                camera.unread(len(left))
-        if live is not None:  # the newest frame finished on a planned end; on a stop or a fault, not waited for
-            live.close(finish=not stop.is_set() and reason in ("frames", "duration", "end of stream"))
-        if saver is not None:
-            saver.close(abort=abort.is_set())
-        if sink is not None:
-            sink.close()
-
-    if refused is not None:
-        for leftover, remove in ((out if created_out else None, Path.rmdir), (new_rrd, Path.unlink)):
-            if leftover is not None:
-                try:
-                    remove(leftover)  # the folder is empty, the recording holds no frame
-                except OSError:
-                    pass
-        raise refused
-    st = camera.stats()
-    elapsed = max(t_end - t_start, 1e-9)
-    if live is not None and live.error is not None:
-        error = f"live processing failed: {live.error}"
-    summary: dict[str, Any] = {
-        "camera": camera.info,
-        "stop_reason": reason,
-        "error": error,
-        "frames_good": st.good,
-        "frames_incomplete": st.incomplete,
-        "frames_dropped": st.dropped,
-        "frames_received": received,
-        "frames_saved": len(saver.saved) if saver else 0,
-        "frames_save_failed": len(saver.failed) if saver else 0,
-        "frames_unsaved": saver.unsaved if saver else 0,
-        "frames_left_at_stop": st.left_at_stop,
-        "frames_processed": live.processed if live else 0,
-        "frames_skipped": live.skipped if live else 0,
-        "separation": separate,
-        "separation_options": dict(separate_options or {}),
-        "separation_illuminant_held": live.held_illuminant if live else None,
-        "separations": live.separations if live else 0,
-        "separations_skipped": live.separations_skipped if live else 0,
-        "separation_seconds_mean": (float(np.mean(live.separation_seconds))
-                                    if live and live.separation_seconds else None),
-        "separation_errors": list(live.separation_errors) if live else [],
-        "separation_abandoned": live.separation_abandoned if live else False,
-        "duration_s": elapsed,
-        "fps": received / elapsed,
-        "fps_processed": (live.processed / elapsed) if live else 0.0,
-        # the two live rates over the capture: maps computed (and logged), frames separated
-        "maps_frames": live.processed if live else 0,
-        "maps_fps": (live.processed / elapsed) if live else 0.0,
-        "layers_frames": live.separations if live else 0,
-        "layers_fps": (live.separations / elapsed) if live else 0.0,
-        "live_seconds_per_frame": (live.seconds / live.processed) if live and live.processed else None,
-        "save_seconds_per_frame": (saver.seconds / len(saver.saved)) if saver and saver.saved else None,
-        "by_status": st.by_status,
-        "queue_overflow": st.queue_overflow,
-        "on_write_error": on_write_error,
-        "write_error": saver.write_error if saver else None,
-        # seconds from the first failed write to the end of acquisition
-        "write_error_to_stop_s": (max(0.0, t_end - saver.failed_at)
-                                  if saver is not None and saver.failed_at is not None else None),
-        "stream": st.stream,
-        "format": save_format if saver else None,
-        "out": None if out is None else str(out),
-        "rerun": None if rerun is None else str(rerun),
-        "stale_temporaries_removed": stale,
-        "calibration": cal_file,
-        "calibration_sha256": cal_sha,
-        "calibration_stages": calibration.applied_stages if calibration is not None else None,
-        "save_errors": saver.failed if saver else [],
-        "files": sorted(saver.saved) if saver else [],
-        "summary_file": None,
-        "summary_error": None,
-    }
-    if out is not None:
-        write_summary(summary, out)
-    return summary
-
-
-def _summary_target(out: Path) -> Path:
-    """``out/summary.json``, or ``out/summary-N.json`` (N = 2, 3, ...) when earlier captures left theirs."""
-    first = out / "summary.json"
-    if not first.exists():
-        return first
-    n = 2
-    while (out / f"summary-{n}.json").exists():
-        n += 1
-    return out / f"summary-{n}.json"
-
-
-def write_summary(summary: dict[str, Any], out: Path) -> Path | None:
-    """Write a capture's summary where it can go; record where in ``summary_file``.
-
-    Tried in order: the output folder (``summary.json``, or ``summary-N.json``
-    beside an earlier capture's), the temporary folder (``$TMPDIR``), the
-    current folder (``polcam-capture-summary-<time>-<pid>.json``).  The reason
-    the output folder refused it goes to ``summary_error``.
-
-    Returns
-    -------
-    pathlib.Path or None
-        The file written, or ``None`` when no place took it (the caller
-        prints the counts).
-    """
-    import os
-    import tempfile
-
-    from polcam.io.atomic import atomic_write
-
-    stamp = f"polcam-capture-summary-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.json"
-    targets = [_summary_target(Path(out)), Path(tempfile.gettempdir()) / stamp, Path.cwd() / stamp]
-    for target in targets:
-        summary["summary_file"] = str(target)
-        try:
-            with atomic_write(target, "w") as fh:
-                json.dump(summary, fh, indent=2, default=str)
-                fh.write("\n")
-        except (PolcamError, OSError) as exc:
-            if summary.get("summary_error") is None:
-                summary["summary_error"] = f"cannot write {target}: {os_reason(exc)}"
-            continue
-        return target
-    summary["summary_file"] = None
-    return None
+    capture = Capture(camera, CaptureOptions(out=out, **options), stop=stop, abort=abort, progress=progress,
+                      calibration=calibration, sinks=sinks)
+    return capture.run()

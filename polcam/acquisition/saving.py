@@ -17,6 +17,9 @@ in the pixel format's packing), ``tiff`` (uncompressed), ``npy``, ``png``
 The first failed write stops the saver (:attr:`FrameSaver.write_error`):
 frames handed to it afterwards, and those still queued, are counted as
 ``unsaved`` rather than tried one by one against a full disk.
+
+:class:`FrameSaver` is a capture's file sink (:class:`polcam.sinks.base.Sink`):
+``log(index, record)`` queues ``record.frame``.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from typing import Any
 from polcam.errors import PolcamError
 from polcam.frame import Frame
 from polcam.io.atomic import os_reason, probe_folder
+from polcam.sinks.base import Record, SinkBase
 
 __all__ = ["SAVE_FORMATS", "FrameSaver", "check_writable", "clean_stale", "existing_frames", "frame_name",
            "os_reason", "write_captured_frame"]
@@ -130,8 +134,8 @@ def check_writable(out: Path, *, need_bytes: int = 1 << 20) -> Path:
     return out
 
 
-class FrameSaver:
-    """Write frames on worker threads, losslessly and atomically.
+class FrameSaver(SinkBase):
+    """Write frames on worker threads, losslessly and atomically: a capture's file sink.
 
     Parameters
     ----------
@@ -143,11 +147,16 @@ class FrameSaver:
         Writer threads (file writes and ``fsync`` release the GIL).
     queue_frames
         Frames waiting to be written before :meth:`put` waits.
+    abort
+        Once set, :meth:`log` stops waiting for room (the frame is counted
+        unsaved) and :meth:`close` drops the frames still queued.
     """
 
-    def __init__(self, out: Path, ext: str, *, workers: int = 2, queue_frames: int = 16) -> None:
+    def __init__(self, out: Path, ext: str, *, workers: int = 2, queue_frames: int = 16,
+                 abort: threading.Event | None = None) -> None:
         self.out = Path(out)
         self.ext = ext
+        self.abort = abort
         self._q: queue.Queue[tuple[int, Frame] | None] = queue.Queue(maxsize=max(1, int(queue_frames)))
         self._lock = threading.Lock()
         self.saved: list[str] = []
@@ -160,6 +169,7 @@ class FrameSaver:
         self.failed_event = threading.Event()
         #: ``time.monotonic()`` of the first failed write, or ``None``.
         self.failed_at: float | None = None
+        self._closed = False
         self._threads = [threading.Thread(target=self._work, name=f"saver-{i}", daemon=True)
                          for i in range(max(1, int(workers)))]
         for t in self._threads:
@@ -181,6 +191,18 @@ class FrameSaver:
                     with self._lock:
                         self.unsaved += 1
                     return False
+
+    def log(self, index: int, record: Record) -> None:
+        """Queue ``record.frame`` as frame ``index`` (:meth:`put` with this saver's ``abort``).
+
+        Raises
+        ------
+        ValueError
+            A record without a frame.
+        """
+        if record.frame is None:
+            raise ValueError(f"FrameSaver: record {index} carries no frame to save")
+        self.put(index, record.frame, abort=self.abort)
 
     def _work(self) -> None:
         while True:
@@ -213,8 +235,16 @@ class FrameSaver:
         """Frames waiting to be written."""
         return self._q.qsize()
 
-    def close(self, *, abort: bool = False) -> None:
-        """Write what is queued (or, with ``abort``, drop it, counted as unsaved) and stop."""
+    def close(self, *, abort: bool | None = None) -> None:
+        """Write what is queued (or, with ``abort``, drop it, counted as unsaved) and stop.
+
+        ``abort=None``: whether this saver's ``abort`` event is set.  A second call does nothing.
+        """
+        if abort is None:
+            abort = self.abort is not None and self.abort.is_set()
+        if self._closed:
+            return
+        self._closed = True
         if abort:
             while True:
                 try:

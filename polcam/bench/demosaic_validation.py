@@ -244,7 +244,7 @@ def select_shared(*, commons: Sequence[float] = SHARED_COMMONS, offsets: Sequenc
                   validation: dict[str, int] | None = None) -> list[dict[str, Any]]:
     """Run ``lmmse`` with the shipped weights and the shared-ratio second stage
     (:func:`polcam.demosaicing._shared_ratio.shared_ratio_stage`) for every (common, offset,
-    residual) Gaussian, the third round's ratio stage (tent kernel) and the ``baselines`` on the
+    residual) Gaussian, the per-colour ratio stage (tent kernel) and the ``baselines`` on the
     colour validation set.
 
     Returns
@@ -256,7 +256,7 @@ def select_shared(*, commons: Sequence[float] = SHARED_COMMONS, offsets: Sequenc
     _, lay, val = next(_validation_sets(("color",), validation))
     none = {"common": None, "offset": None, "residual": None}
     rows = _baseline_rows("color", lay, val, baselines, ("ridge", *none))
-    variants = [("lmmse, ratio stage (tent, third round)", {"color_stage": "ratio", "kernel": "tent"}, none)]
+    variants = [("lmmse, ratio stage (tent)", {"color_stage": "ratio", "kernel": "tent"}, none)]
     for common, offset, residual in itertools.product(commons, offsets, residuals):
         variants.append((f"lmmse, shared ratio, common {common:g}, offsets {offset:g}, residual {residual:g}",
                          {"color_stage": "shared-ratio", "common_sigma": common, "offset_sigma": offset,

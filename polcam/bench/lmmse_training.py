@@ -6,7 +6,7 @@ training stacks are drawn from a seeded random generator: scenes polcam renders
 itself (:func:`training_stack`), scenes of :mod:`polcam.synth.patterns`, and crops of
 public-domain / CC0 photographs that ship with scikit-image, given a simulated
 polarization by :mod:`polcam.synth.photos`; so the weights carry no licence
-that forbids shipping them (docs/demosaic.md lists the photographs' licences).
+that forbids shipping them (docs/methods/demosaic-lmmse.md lists the photographs' licences).
 
 The scenes aim at what real colour-polarization frames contain and what the
 benchmark's synthetic scenes do not: colours that do NOT share one
@@ -67,7 +67,8 @@ from polcam.synth.photos import TRAINING_PHOTOS, photo_stack
 
 __all__ = ["fit_bank", "noisy_raw", "save_weights", "train", "training_stack"]
 
-#: Defaults of the command line (chosen by :mod:`polcam.bench.demosaic_validation`; docs/demosaic.md).
+#: Defaults of the command line (chosen by :mod:`polcam.bench.demosaic_validation`;
+#: docs/methods/demosaic-lmmse.md).
 DEFAULT_PATTERNS = 50
 DEFAULT_PHOTOS = 80
 DEFAULT_MOMENTS = 2

@@ -286,16 +286,7 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     MethodError
         An unknown method name.
     """
-    found = find_scenes(Path(data))
-    if not found:
-        raise PolcamError(f"--data {data}: no real colour stack found (expected real-color-stack/"
-                          "{0,45,90,135}_1.png or real-color-stacks/<scene>/{0,45,90,135}.png)")
-    if scenes:
-        unknown = [s for s in scenes if s not in found]
-        if unknown:
-            raise PolcamError(f"scene(s) {', '.join(unknown)} not in {data}; found {', '.join(found)}")
-        found = {k: v for k, v in found.items() if k in scenes}
-
+    found = _scenes(data, scenes)
     meths = list(methods or _colour_methods())
     for m in meths:
         method_spec(m)  # an unknown name is refused before any work
@@ -310,24 +301,47 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
         given = camera_stack(true)
         layers[name] = {"input": given.mean(axis=0)}
         for m in meths:
-            t0 = time.perf_counter()
-            try:
-                res = separate(given, method=m, **options.get(m, {}))
-            except Exception as exc:  # a failing method is reported, not fatal to the table
-                scores.append(RealScore(name, m, *([float("nan")] * 5), time.perf_counter() - t0,
-                                        error=f"{type(exc).__name__}: {exc}"))
+            score, res = _score(name, m, given, true, ach, options.get(m, {}))
+            scores.append(score)
+            if res is None:
                 continue
-            sec = float(res.info.get("seconds", time.perf_counter() - t0))
-            mt = metrics(res.diffuse, res.specular, given, true, achromatic=ach)
-            scores.append(RealScore(name, m, seconds=sec, **mt))
             layers[name][f"{m}/diffuse"] = res.diffuse
             layers[name][f"{m}/specular"] = res.specular
             if progress:
                 s = scores[-1]
                 print(f"  {name:<9} {m:<19} >Imin {s.over_input:6.2%} (true {s.over_true:6.2%})  "
                       f"spread {s.spread:.3f}  top1% removed {s.top_removed:.3f}  "
-                      f"achromatic kept {s.achromatic_kept:.3f}  {sec:6.2f} s", flush=True)
+                      f"achromatic kept {s.achromatic_kept:.3f}  {s.seconds:6.2f} s", flush=True)
     return scores, layers
+
+
+def _scenes(data: Path, scenes: Sequence[str] | None) -> dict[str, Any]:
+    """The real stacks under ``data`` (only ``scenes`` when given); PolcamError when none or one is unknown."""
+    found = find_scenes(Path(data))
+    if not found:
+        raise PolcamError(f"--data {data}: no real colour stack found (expected real-color-stack/"
+                          "{0,45,90,135}_1.png or real-color-stacks/<scene>/{0,45,90,135}.png)")
+    if scenes:
+        unknown = [s for s in scenes if s not in found]
+        if unknown:
+            raise PolcamError(f"scene(s) {', '.join(unknown)} not in {data}; found {', '.join(found)}")
+        found = {k: v for k, v in found.items() if k in scenes}
+    return found
+
+
+def _score(name: str, m: str, given: np.ndarray, true: np.ndarray, ach: np.ndarray,
+           options: dict[str, Any]) -> tuple[RealScore, Any]:
+    """One method on one scene: its score and the separation (None when the method failed: the
+    error is in the score, not fatal to the table)."""
+    t0 = time.perf_counter()
+    try:
+        res = separate(given, method=m, **options)
+    except Exception as exc:  # a failing method is reported, not fatal to the table
+        return RealScore(name, m, *([float("nan")] * 5), time.perf_counter() - t0,
+                         error=f"{type(exc).__name__}: {exc}"), None
+    sec = float(res.info.get("seconds", time.perf_counter() - t0))
+    mt = metrics(res.diffuse, res.specular, given, true, achromatic=ach)
+    return RealScore(name, m, seconds=sec, **mt), res
 
 
 def format_table(scores: Sequence[RealScore]) -> str:

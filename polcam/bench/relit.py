@@ -234,21 +234,7 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     -------
     list of RelitScore
     """
-    found = find_scenes(Path(data))
-    if not found:
-        raise PolcamError(f"--data {data}: no real colour stack found")
-    if scenes:
-        unknown = [s for s in scenes if s not in found]
-        if unknown:
-            raise PolcamError(f"scene(s) {', '.join(unknown)} not in {data}; found {', '.join(found)}")
-        found = {k: v for k, v in found.items() if k in scenes}
-    names = list(variants or VARIANTS)
-    bad = [v for v in names if v not in VARIANTS]
-    if bad:
-        raise PolcamError(f"variant(s) {', '.join(bad)}: expected some of {', '.join(VARIANTS)}")
-    meths = list(methods or [m for m in METHODS if not mono or method_spec(m).mono])
-    for m in meths:
-        method_spec(m)
+    found, names, meths = _selection(data, scenes, variants, methods, mono)
     options = options or {}
     out: list[RelitScore] = []
     for name, files in found.items():
@@ -264,26 +250,51 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
             else:
                 given = camera_stack(true)
             for m in meths:
-                t0 = time.perf_counter()
-                try:
-                    res = separate(given[..., 0] if mono else given, method=m, **options.get(m, {}))
-                except Exception as exc:  # a failing method is reported, not fatal to the table
-                    out.append(RelitScore(name, v, m, *([float("nan")] * 5), time.perf_counter() - t0,
-                                          error=f"{type(exc).__name__}: {exc}"))
-                    continue
-                sec = float(res.info.get("seconds", time.perf_counter() - t0))
-                dif = res.diffuse[..., None] if mono else res.diffuse
-                spe = res.specular[..., None] if mono else res.specular
-                mt = metrics(dif, spe, given, true, achromatic=matte)
-                inv, share = invented_structure(dif, given)
-                out.append(RelitScore(name, v, m, mt["achromatic_kept"], mt["top_removed"], mt["spread"], inv,
-                                      share, sec))
-                if progress:
+                out.append(_score(name, v, m, given, true, matte, mono=mono, options=options.get(m, {})))
+                if progress and out[-1].error is None:
                     s = out[-1]
                     print(f"  {name:<8} {v:<19} {m:<19} matte kept {s.matte_kept:.3f}  top1% {s.top_removed:.3f}  "
-                          f"spread {s.spread:.3f}  invented {s.invented:.4f} (clipped {share:.1%})  {sec:6.2f} s",
-                          flush=True)
+                          f"spread {s.spread:.3f}  invented {s.invented:.4f} (clipped {s.clipped_share:.1%})  "
+                          f"{s.seconds:6.2f} s", flush=True)
     return out
+
+
+def _selection(data: Path, scenes: Sequence[str] | None, variants: Sequence[str] | None,
+               methods: Sequence[str] | None, mono: bool) -> tuple[dict[str, Any], list[str], list[str]]:
+    """The stacks, variants and methods to run, each checked (PolcamError naming what is unknown)."""
+    found = find_scenes(Path(data))
+    if not found:
+        raise PolcamError(f"--data {data}: no real colour stack found")
+    if scenes:
+        unknown = [s for s in scenes if s not in found]
+        if unknown:
+            raise PolcamError(f"scene(s) {', '.join(unknown)} not in {data}; found {', '.join(found)}")
+        found = {k: v for k, v in found.items() if k in scenes}
+    names = list(variants or VARIANTS)
+    bad = [v for v in names if v not in VARIANTS]
+    if bad:
+        raise PolcamError(f"variant(s) {', '.join(bad)}: expected some of {', '.join(VARIANTS)}")
+    meths = list(methods or [m for m in METHODS if not mono or method_spec(m).mono])
+    for m in meths:
+        method_spec(m)
+    return found, names, meths
+
+
+def _score(name: str, v: str, m: str, given: np.ndarray, true: np.ndarray, matte: np.ndarray, *, mono: bool,
+           options: dict[str, Any]) -> RelitScore:
+    """One method on one relit stack; a failing method is reported in ``error``, not fatal to the table."""
+    t0 = time.perf_counter()
+    try:
+        res = separate(given[..., 0] if mono else given, method=m, **options)
+    except Exception as exc:  # a failing method is reported, not fatal to the table
+        return RelitScore(name, v, m, *([float("nan")] * 5), time.perf_counter() - t0,
+                          error=f"{type(exc).__name__}: {exc}")
+    sec = float(res.info.get("seconds", time.perf_counter() - t0))
+    dif = res.diffuse[..., None] if mono else res.diffuse
+    spe = res.specular[..., None] if mono else res.specular
+    mt = metrics(dif, spe, given, true, achromatic=matte)
+    inv, share = invented_structure(dif, given)
+    return RelitScore(name, v, m, mt["achromatic_kept"], mt["top_removed"], mt["spread"], inv, share, sec)
 
 
 def _mono_camera(true_grey: np.ndarray) -> np.ndarray:

@@ -14,7 +14,7 @@ Two measurements per synthetic scene (:mod:`polcam.synth.scenes`) and method, on
   the later frames, as ``polcam capture`` does by default
   (:class:`polcam.acquisition.live.LiveProcessor`).
 
-docs/algorithm.md ("Continuity", "Frame-to-frame stability") reports both for
+docs/methods/polarized-residual.md ("Stability") reports both for
 ``polarized-residual``; ``imin`` is the reference of a method with no switch.
 """
 

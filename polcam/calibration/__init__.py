@@ -1,6 +1,6 @@
 """Calibration of polarization cameras: dark, flat field and the per-pixel polarizer model.
 
-Each pixel k of a division-of-focal-plane sensor reads (docs/calibration.md)::
+Each pixel k of a division-of-focal-plane sensor reads (docs/guide/calibration.md)::
 
     I_k = g_k / 2 * (S0 + D_k (S1 cos 2 theta_k + S2 sin 2 theta_k)) + d_k
 

@@ -29,7 +29,7 @@ Where each correction runs (docs/architecture.md draws the stages):
        the pixels it was interpolated from (exact for bilinear demosaicing of a
        locally uniform scene), and each pixel's 4x3 matrix is inverted.
 
-docs/calibration.md compares the two (docs/benchmarks.md has the figures).
+docs/guide/calibration.md compares the two (docs/benchmarks.md has the figures).
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ Each pixel contributes one *measurement row* ``w_k = g_k / 2 [1, D_k cos 2theta_
 D_k sin 2theta_k]``; four pixels (a 2x2 super-pixel, or the four angle values of
 one demosaiced pixel) form a 4x3 matrix ``W`` and the least-squares Stokes
 estimate is ``S = A x`` with the *analysis matrix* ``A = (W^T W)^-1 W^T``
-(Powell & Gruev 2013, docs/calibration.md).
+(Powell & Gruev 2013, docs/guide/calibration.md).
 
 The *correction matrix* ``M`` (4x4) maps the four measured values to the values
 four ideal polarizers would have given for the estimated Stokes vector, plus

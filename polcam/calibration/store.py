@@ -390,6 +390,26 @@ def load_calibration(path: str | PathLike[str]) -> Calibration:
     p = Path(path)
     if not p.is_file():
         raise CalibrationError("calibration file not found", path=p)
+    raw_meta, arrays = _read_archive(p)
+    meta = _checked_meta(raw_meta, p)
+    num = (int, float)
+    cal = Calibration(
+        layout=meta["layout"], height=meta["height"], width=meta["width"], bit_depth=meta["bit_depth"],
+        camera_id=_opt(meta, "camera_id", (str,), p),
+        exposure_us=_float(_opt(meta, "exposure_us", num, p)),
+        gain_db=_float(_opt(meta, "gain_db", num, p)),
+        black_level=_float(_opt(meta, "black_level", num, p)),
+        white_level=_float(_opt(meta, "white_level", num, p)),
+        roi=meta.get("roi"),
+        reverse_x=_opt(meta, "reverse_x", (bool,), p), reverse_y=_opt(meta, "reverse_y", (bool,), p),
+        maps=arrays, stages=meta.get("stages") or {}, created=str(meta.get("created", "")),
+        polcam_version=str(meta.get("polcam_version", "unknown")), source=str(p),
+    )
+    return cal
+
+
+def _read_archive(p: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The ``meta`` entry and the maps of a calibration ``.npz`` (no pickles), or a CalibrationError naming ``p``."""
     try:
         is_zip = zipfile.is_zipfile(p)
     except OSError as exc:
@@ -413,6 +433,11 @@ def load_calibration(path: str | PathLike[str]) -> Calibration:
     except ValueError as exc:
         # allow_pickle=False refuses object arrays with a ValueError
         raise CalibrationError(f"cannot read: {exc} (calibration files hold plain arrays only)", path=p) from exc
+    return raw_meta, arrays
+
+
+def _checked_meta(raw_meta: np.ndarray, p: Path) -> dict[str, Any]:
+    """The calibration's metadata: JSON of this format, a version this polcam reads, the required keys."""
     if raw_meta.ndim != 0 or raw_meta.dtype.kind != "U":
         raise CalibrationError(f"'meta' entry of dtype {raw_meta.dtype} and shape {raw_meta.shape}: "
                                "expected a JSON string", path=p)
@@ -440,20 +465,7 @@ def load_calibration(path: str | PathLike[str]) -> Calibration:
     if roi is not None and not (isinstance(roi, list) and len(roi) == 4 and all(
             isinstance(v, int) and not isinstance(v, bool) for v in roi)):
         raise CalibrationError(f"meta key 'roi' has value {roi!r}: expected [x, y, w, h] integers", path=p)
-    num = (int, float)
-    cal = Calibration(
-        layout=meta["layout"], height=meta["height"], width=meta["width"], bit_depth=meta["bit_depth"],
-        camera_id=_opt(meta, "camera_id", (str,), p),
-        exposure_us=_float(_opt(meta, "exposure_us", num, p)),
-        gain_db=_float(_opt(meta, "gain_db", num, p)),
-        black_level=_float(_opt(meta, "black_level", num, p)),
-        white_level=_float(_opt(meta, "white_level", num, p)),
-        roi=roi,
-        reverse_x=_opt(meta, "reverse_x", (bool,), p), reverse_y=_opt(meta, "reverse_y", (bool,), p),
-        maps=arrays, stages=stages, created=str(meta.get("created", "")),
-        polcam_version=str(meta.get("polcam_version", "unknown")), source=str(p),
-    )
-    return cal
+    return meta
 
 
 def _float(v: Any) -> float | None:

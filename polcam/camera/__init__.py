@@ -1,7 +1,8 @@
 """Cameras: one protocol, a registry of backends.
 
 - :class:`~polcam.camera.base.Camera`: the protocol (context manager; open,
-  configure, start/stop, read frames with timeouts, statistics).
+  configure with :class:`~polcam.camera.base.CameraSettings`, start/stop,
+  read frames with timeouts, statistics).
 - :class:`~polcam.camera.aravis.AravisCamera`: GenICam cameras (GigE Vision,
   USB3 Vision, Aravis' Fake camera) through Aravis 0.8 and PyGObject.
 - :class:`~polcam.camera.replay.ReplayCamera`: ``replay:DIR``, a folder of
@@ -26,6 +27,7 @@ from polcam.camera.base import (
     CameraDisconnectedError,
     CameraNotFoundError,
     CameraSettingError,
+    CameraSettings,
     CapturedFrame,
     FrameTimeout,
     StreamStats,
@@ -40,6 +42,7 @@ __all__ = [
     "CameraDisconnectedError",
     "CameraNotFoundError",
     "CameraSettingError",
+    "CameraSettings",
     "CapturedFrame",
     "DeviceInfo",
     "FrameTimeout",

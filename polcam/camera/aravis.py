@@ -15,6 +15,7 @@ import numpy as np
 
 from polcam.camera.base import (
     Camera,
+    CameraSettings,
     CameraBusyError,
     CameraNotFoundError,
     CameraSettingError,
@@ -370,19 +371,7 @@ class AravisCamera(Camera):
         return out
 
     # ------------------------------------------------------------- configure
-    def configure(
-        self,
-        *,
-        pixel_format: str | None = None,
-        layout: str | Layout | None = None,
-        exposure_us: float | None = None,
-        gain_db: float | None = None,
-        roi: tuple[int, int, int, int] | None = None,
-        frame_rate: float | None = None,
-        trigger: str | None = None,
-        reverse_x: bool | None = None,
-        reverse_y: bool | None = None,
-    ) -> dict[str, Any]:
+    def _configure(self, settings: CameraSettings) -> dict[str, Any]:
         """Apply settings (see :meth:`Camera.configure`); returns them as read back.
 
         Raises
@@ -395,6 +384,7 @@ class AravisCamera(Camera):
         CameraSettingError
             A value the camera refuses, a missing feature, an unknown trigger.
         """
+        s = settings
         self._need_open()
         if self._running:
             raise CameraSettingError(f"camera {self.camera_id}: stop acquisition before configuring")
@@ -402,8 +392,8 @@ class AravisCamera(Camera):
 
         cam = self._cam
         ignored: list[str] = []
-        if layout is not None:
-            self._user_layout = parse_layout(layout)
+        if s.layout is not None:
+            self._user_layout = parse_layout(s.layout)
 
         def attempt(what: str, value: Any, fn: Any, *args: Any) -> None:
             try:
@@ -413,21 +403,21 @@ class AravisCamera(Camera):
                     f"camera {self.camera_id} refused {what} = {value!r}: {gerror_message(exc)}"
                 ) from None
 
-        if pixel_format is not None:
+        if s.pixel_format is not None:
             offered = list(cam.dup_available_pixel_formats_as_strings() or [])
-            if pixel_format not in offered:
+            if s.pixel_format not in offered:
                 raise PixelFormatError(
                     f"camera {self.camera_id} ({self._vendor}) does not offer pixel format "
-                    f"{pixel_format!r}; supported (offered by the camera and read by polcam): "
+                    f"{s.pixel_format!r}; supported (offered by the camera and read by polcam): "
                     f"{', '.join(self.readable_formats()) or 'none'} (camera offers: {', '.join(offered)})"
                 )
-            fmt = self._lookup(pixel_format)
-            attempt("PixelFormat", pixel_format, cam.set_pixel_format_from_string, fmt.name)
+            fmt = self._lookup(s.pixel_format)
+            attempt("PixelFormat", s.pixel_format, cam.set_pixel_format_from_string, fmt.name)
         fmt = self._lookup(cam.get_pixel_format_as_string())
         sensor = layout_for_format(fmt, self._user_layout)  # LayoutError for plain formats without one
 
-        if reverse_x is not None or reverse_y is not None:
-            for feat, val in (("ReverseX", reverse_x), ("ReverseY", reverse_y)):
+        if s.reverse_x is not None or s.reverse_y is not None:
+            for feat, val in (("ReverseX", s.reverse_x), ("ReverseY", s.reverse_y)):
                 if val is None:
                     continue
                 if not self._available(feat):
@@ -436,35 +426,35 @@ class AravisCamera(Camera):
                     continue
                 attempt(feat, val, self._dev.set_boolean_feature_value, feat, bool(val))
 
-        if roi is not None:
-            self._set_roi(roi, sensor.period, attempt)
+        if s.roi is not None:
+            self._set_roi(s.roi, sensor.period, attempt)
 
-        if exposure_us is not None:
+        if s.exposure_us is not None:
             if not cam.is_exposure_time_available():
                 raise CameraSettingError(f"camera {self.camera_id} has no exposure time feature")
             if cam.is_exposure_auto_available():
                 attempt("ExposureAuto", "Off", cam.set_exposure_time_auto, self._arv.Auto.OFF)
-            attempt("exposure time (us)", exposure_us, cam.set_exposure_time, float(exposure_us))
-        if gain_db is not None:
+            attempt("exposure time (us)", s.exposure_us, cam.set_exposure_time, float(s.exposure_us))
+        if s.gain_db is not None:
             if not cam.is_gain_available():
                 raise CameraSettingError(f"camera {self.camera_id} has no gain feature")
             if cam.is_gain_auto_available():
                 attempt("GainAuto", "Off", cam.set_gain_auto, self._arv.Auto.OFF)
-            attempt("gain", gain_db, cam.set_gain, float(gain_db))
-        if frame_rate is not None:
-            if frame_rate <= 0:
-                raise CameraSettingError(f"frame rate {frame_rate!r}: expected a positive number")
+            attempt("gain", s.gain_db, cam.set_gain, float(s.gain_db))
+        if s.frame_rate is not None:
+            if s.frame_rate <= 0:
+                raise CameraSettingError(f"frame rate {s.frame_rate!r}: expected a positive number")
             if cam.is_frame_rate_available():
-                attempt("frame rate", frame_rate, cam.set_frame_rate, float(frame_rate))
+                attempt("frame rate", s.frame_rate, cam.set_frame_rate, float(s.frame_rate))
             else:
                 ignored.append("frame_rate")
-        if trigger is not None:
-            self._set_trigger(trigger, attempt)
+        if s.trigger is not None:
+            self._set_trigger(s.trigger, attempt)
         self._refresh()
         out = dict(self._meta)
         out["layout"] = None if self._layout is None else self._layout.short_name
         out["sensor_layout"] = sensor.short_name
-        out["trigger"] = trigger or "unchanged"
+        out["trigger"] = s.trigger or "unchanged"
         out["ignored"] = ignored
         return out
 

@@ -4,6 +4,7 @@ A camera is used as a context manager::
 
     with open_camera("Fake_1") as cam:            # open() ... close()
         cam.configure(pixel_format="Mono8", layout="imx250mzr", exposure_us=5000)
+        # or cam.configure(CameraSettings(...)): the same fields
         cam.start()
         for frame in cam.frames(timeout=1.0):     # good frames only
             ...
@@ -34,7 +35,7 @@ import queue
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from polcam.errors import CameraUnavailableError, PolcamError
@@ -43,6 +44,7 @@ from polcam.mosaic import Layout
 
 __all__ = [
     "Camera",
+    "CameraSettings",
     "CameraBusyError",
     "CameraDisconnectedError",
     "CameraNotFoundError",
@@ -96,6 +98,66 @@ class CapturedFrame(Frame):
     """
 
     payload: bytes | None = None
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """What :meth:`Camera.configure` sets; ``None`` leaves a setting as it is.
+
+    Attributes
+    ----------
+    pixel_format
+        GenICam PixelFormat name; must be one the camera offers and polcam
+        reads.
+    layout
+        Sensor layout for cameras whose format does not say where the
+        polarizers are (plain Mono/Bayer formats).
+    exposure_us
+        Exposure time, microseconds.
+    gain_db
+        Gain (dB on SFNC cameras; raw units where the camera only has GainRaw).
+    roi
+        ``(x, y, width, height)`` on the sensor.  Offsets and sizes are
+        rounded down to multiples of the layout's period (2 mono, 4
+        colour) and of the camera's increments, so the delivered image
+        starts on a whole polarizer (and colour) cell.
+    frame_rate
+        Frames per second.
+    trigger
+        ``"free"`` (free-running), ``"software"`` (:meth:`Camera.trigger`
+        releases each frame) or a hardware line name (``Line0`` ...).
+    reverse_x, reverse_y
+        GenICam ReverseX / ReverseY, where the camera has them.
+    """
+
+    pixel_format: str | None = None
+    layout: str | Layout | None = None
+    exposure_us: float | None = None
+    gain_db: float | None = None
+    roi: tuple[int, int, int, int] | None = None
+    frame_rate: float | None = None
+    trigger: str | None = None
+    reverse_x: bool | None = None
+    reverse_y: bool | None = None
+
+    @classmethod
+    def of(cls, settings: CameraSettings | None = None, /, **changes: Any) -> CameraSettings:
+        """``settings`` (default: all ``None``) with ``changes`` applied.
+
+        Raises
+        ------
+        TypeError
+            A name in ``changes`` that is not a field (the message lists the fields).
+        """
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(set(changes) - set(names))
+        if unknown:
+            raise TypeError(f"unknown camera settings {unknown}; expected some of {', '.join(names)}")
+        return replace(settings or cls(), **changes)
+
+    def given(self) -> dict[str, Any]:
+        """The settings that are not ``None``, by name."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
 
 
 @dataclass
@@ -228,46 +290,17 @@ class Camera(abc.ABC):
     def close(self) -> None:
         """Release the camera (stops acquisition first)."""
 
-    @abc.abstractmethod
-    def configure(
-        self,
-        *,
-        pixel_format: str | None = None,
-        layout: str | Layout | None = None,
-        exposure_us: float | None = None,
-        gain_db: float | None = None,
-        roi: tuple[int, int, int, int] | None = None,
-        frame_rate: float | None = None,
-        trigger: str | None = None,
-        reverse_x: bool | None = None,
-        reverse_y: bool | None = None,
-    ) -> dict[str, Any]:
-        """Apply settings; ``None`` leaves a setting as it is.
+    def configure(self, settings: CameraSettings | None = None, /, **changes: Any) -> dict[str, Any]:
+        """Apply settings; a setting left ``None`` stays as it is.
 
         Parameters
         ----------
-        pixel_format
-            GenICam PixelFormat name; must be one the camera offers and polcam
-            reads.
-        layout
-            Sensor layout for cameras whose format does not say where the
-            polarizers are (plain Mono/Bayer formats).
-        exposure_us
-            Exposure time, microseconds.
-        gain_db
-            Gain (dB on SFNC cameras; raw units where the camera only has GainRaw).
-        roi
-            ``(x, y, width, height)`` on the sensor.  Offsets and sizes are
-            rounded down to multiples of the layout's period (2 mono, 4
-            colour) and of the camera's increments, so the delivered image
-            starts on a whole polarizer (and colour) cell.
-        frame_rate
-            Frames per second.
-        trigger
-            ``"free"`` (free-running), ``"software"`` (:meth:`trigger`
-            releases each frame) or a hardware line name (``Line0`` ...).
-        reverse_x, reverse_y
-            GenICam ReverseX / ReverseY, where the camera has them.
+        settings
+            The settings (:class:`CameraSettings`), or ``None``.
+        **changes
+            Fields of :class:`CameraSettings` (``pixel_format``, ``layout``,
+            ``exposure_us``, ``gain_db``, ``roi``, ``frame_rate``,
+            ``trigger``, ``reverse_x``, ``reverse_y``) set on top of ``settings``.
 
         Returns
         -------
@@ -275,7 +308,19 @@ class Camera(abc.ABC):
             The settings as the camera reports them afterwards (what frames
             will carry), including ``layout`` (the delivered image's layout)
             and ``ignored`` (settings this camera cannot apply).
+
+        Raises
+        ------
+        TypeError
+            A keyword that is not a field of :class:`CameraSettings`.
+        CameraSettingError, PixelFormatError, LayoutError
+            A setting the camera refuses (the backend's :meth:`_configure`).
         """
+        return self._configure(CameraSettings.of(settings, **changes))
+
+    @abc.abstractmethod
+    def _configure(self, settings: CameraSettings) -> dict[str, Any]:
+        """Apply ``settings`` (the backend's part of :meth:`configure`); returns what :meth:`configure` does."""
 
     @abc.abstractmethod
     def _start(self) -> None:

@@ -63,10 +63,40 @@ def open_camera(device: str, **options: Any) -> Camera:
         replay; ``n_buffers``, ``packet_size``, ``socket_buffer_bytes`` for
         Aravis; ``queue_frames`` for both).
 
+    Returns
+    -------
+    Camera
+        The backend's camera, closed: use it as a context manager (opens and
+        closes it), :meth:`~polcam.camera.Camera.start` it and read
+        :meth:`~polcam.camera.Camera.frames`.
+
     Raises
     ------
     CameraNotFoundError
         An empty id, or no backend for it.
+
+    Examples
+    --------
+    The replay camera plays a folder of raw frames, here three 4 x 4 PNGs:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> from polcam import Frame
+    >>> from polcam.camera import open_camera
+    >>> from polcam.io import write_frame
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> for i in range(3):
+    ...     mosaic = np.full((4, 4), 10 * i, dtype=np.uint8)
+    ...     _ = write_frame(Path(tmp.name) / f"frame_{i}.png", Frame(mosaic, layout="imx250mzr"))
+    >>> with open_camera(f"replay:{tmp.name}") as camera:
+    ...     camera.start()
+    ...     for frame in camera.frames(timeout=1.0):
+    ...         print(frame.metadata["frame_id"], frame.layout, frame.mosaic.max())
+    0 imx250mzr 0
+    1 imx250mzr 10
+    2 imx250mzr 20
+    >>> tmp.cleanup()
     """
     from polcam.camera.base import CameraNotFoundError
 

@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from polcam.camera.base import Camera, CameraNotFoundError, CameraSettingError, CapturedFrame
+from polcam.camera.base import Camera, CameraNotFoundError, CameraSettingError, CameraSettings, CapturedFrame
 from polcam.camera.registry import register_backend
 from polcam.errors import PixelFormatError, PolcamError
 from polcam.frame import Frame
@@ -168,19 +168,7 @@ class ReplayCamera(Camera):
         return self.frame_rate is None
 
     # ------------------------------------------------------------- configure
-    def configure(
-        self,
-        *,
-        pixel_format: str | None = None,
-        layout: str | Layout | None = None,
-        exposure_us: float | None = None,
-        gain_db: float | None = None,
-        roi: tuple[int, int, int, int] | None = None,
-        frame_rate: float | None = None,
-        trigger: str | None = None,
-        reverse_x: bool | None = None,
-        reverse_y: bool | None = None,
-    ) -> dict[str, Any]:
+    def _configure(self, settings: CameraSettings) -> dict[str, Any]:
         """Apply what a file source can: layout, ROI (a crop), frame rate, trigger.
 
         Exposure, gain and mirroring are recorded in the files and cannot be
@@ -194,34 +182,35 @@ class ReplayCamera(Camera):
         CameraSettingError
             A bad ROI, frame rate or trigger.
         """
+        s = settings
         if not self._opened:
             raise CameraSettingError(f"camera {self.camera_id} is not open: call open() first")
         if self._running:
             raise CameraSettingError(f"camera {self.camera_id}: stop playback before configuring")
         first = self._first
         have = first.metadata.get("pixel_format")
-        if pixel_format is not None and pixel_format != have:
+        if s.pixel_format is not None and s.pixel_format != have:
             raise PixelFormatError(
                 f"replay folder {str(self.folder)!r} holds frames in pixel format {have or 'unknown (plain 8/16-bit)'}; "
-                f"supported: {have or 'the files as they are (omit --pixel-format)'}, not {pixel_format!r}"
+                f"supported: {have or 'the files as they are (omit --pixel-format)'}, not {s.pixel_format!r}"
             )
-        ignored = [name for name, v in (("exposure_us", exposure_us), ("gain_db", gain_db),
-                                        ("reverse_x", reverse_x), ("reverse_y", reverse_y)) if v is not None]
-        if layout is not None:
-            self._layout_override = parse_layout(layout)
+        ignored = [name for name, v in (("exposure_us", s.exposure_us), ("gain_db", s.gain_db),
+                                        ("reverse_x", s.reverse_x), ("reverse_y", s.reverse_y)) if v is not None]
+        if s.layout is not None:
+            self._layout_override = parse_layout(s.layout)
         base = self._layout_override or first.layout
-        if frame_rate is not None:
-            if not frame_rate > 0:
-                raise CameraSettingError(f"frame rate {frame_rate!r}: expected a positive number")
-            self.frame_rate = float(frame_rate)
-        if trigger is not None:
-            if trigger not in ("free", "software"):
+        if s.frame_rate is not None:
+            if not s.frame_rate > 0:
+                raise CameraSettingError(f"frame rate {s.frame_rate!r}: expected a positive number")
+            self.frame_rate = float(s.frame_rate)
+        if s.trigger is not None:
+            if s.trigger not in ("free", "software"):
                 raise CameraSettingError(
-                    f"trigger {trigger!r}: the replay camera has 'free' and 'software' triggers only"
+                    f"trigger {s.trigger!r}: the replay camera has 'free' and 'software' triggers only"
                 )
-            self._trigger = trigger
-        if roi is not None:
-            self._roi = self._aligned_roi(roi, base, first.shape)
+            self._trigger = s.trigger
+        if s.roi is not None:
+            self._roi = self._aligned_roi(s.roi, base, first.shape)
         self._layout = base
         if base is not None and self._roi is not None:
             self._layout = base.shifted(self._roi[0], self._roi[1])

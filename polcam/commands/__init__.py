@@ -46,7 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def reference_markdown() -> str:
-    """docs/cli.md: every command's --help, rendered at 100 columns."""
+    """docs/reference/cli.md: every command's --help, rendered at 100 columns."""
     import os
 
     old = os.environ.get("COLUMNS")
@@ -55,7 +55,7 @@ def reference_markdown() -> str:
         parser = build_parser()
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         parts = ["# polcam command line", "",
-                 "Generated from the parsers (`python -m polcam.cli --markdown > docs/cli.md`); "
+                 "Generated from the parsers (`python -m polcam.cli --markdown > docs/reference/cli.md`); "
                  "`polcam COMMAND --help` prints the same.", "", "```", parser.format_help().rstrip(), "```"]
         for name, cmd in sub.choices.items():
             parts += ["", f"## polcam {name}", "", "```", cmd.format_help().rstrip(), "```"]

@@ -197,7 +197,7 @@ def add_calibrate_parser(subparsers: Any) -> argparse.ArgumentParser:
         description="Measure a camera's dark level and hot pixels (dark), per-pixel gain (flat) and "
                     "per-pixel polarizer gain, diattenuation and orientation (polarizer) from frames on "
                     "disk, and write them to one .npz file that 'polcam process --calibration FILE' "
-                    "applies (docs/calibration.md). Chain the stages with --calibration: "
+                    "applies (docs/guide/calibration.md). Chain the stages with --calibration: "
                     "dark -> flat -> polarizer. " + _LIVE_NOTE)
     sub = c.add_subparsers(dest="calibrate_stage", required=True, metavar="STAGE")
     d = _add_stage(sub, "dark", "lens capped: dark level, temporal noise, hot pixels",

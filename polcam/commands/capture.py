@@ -5,7 +5,7 @@ The command line of :mod:`polcam.acquisition`: open and configure the camera
 second signal abandons the frames still queued for writing), run
 :func:`polcam.acquisition.run_capture`, print the summary.
 
-Exit statuses (docs/reliability.md): 0 the capture ran to its stop condition
+Exit statuses (docs/guide/faults.md): 0 the capture ran to its stop condition
 (frames, duration, end of a replay, a signal); 1 it ended with an error (no
 frame for ``--timeout`` seconds, live processing failed); 2 refused before
 the first frame (bad options, an output folder that cannot be written, a

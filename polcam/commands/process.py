@@ -140,14 +140,12 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
             raise KeyboardInterrupt
 
     old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    sink = None
+    sinks: list[Any] = []
     t0 = time.perf_counter()
     progress = None
     task = None
     results: list[dict[str, Any]] = []
     try:
-        if args.rerun is not None:  # RERUN SINK call site (process --rerun)
-            sink = proc.RunRecording(args.rerun, [j.name for j in jobs])
         if not (args.quiet or args.json):
             from rich.console import Console
             from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
@@ -171,26 +169,26 @@ def _run(args: argparse.Namespace, opts: Any, jobs: list[Any], problems: list[di
                     print(msg, file=sys.stderr)
             if args.json:
                 print(json.dumps({"event": "frame", **r}), flush=True)
-            if sink is not None and r["status"] in ("done", "skipped"):  # RERUN SINK call site
-                sink.log_frame(Path(args.out) / r["name"], FORMATS[opts.format][0], r["name"])
             if progress is not None and task is not None:
                 elapsed = time.perf_counter() - t0
                 progress.update(task, advance=1,
                                 rate=f"{len(results) / max(elapsed, 1e-9) * 60:.1f} frames/min")
             state["computing"] = in_process and not state["stop"]
 
+        if args.rerun is not None:
+            from polcam.sinks.recording import RecordingSink
+
+            sinks.append(RecordingSink(args.rerun))
         state["computing"] = in_process
-        try:
+        try:  # run() closes the sinks
             proc.run(jobs, opts, workers=workers, scheduler=client, force=args.force, on_result=on_result,
-                     stop=lambda: state["stop"], abort=lambda: state["abort"])
+                     stop=lambda: state["stop"], abort=lambda: state["abort"], sinks=sinks)
         except KeyboardInterrupt:  # raised by on_signal to stop now (run() reported the frame cancelled)
             pass
     finally:
         state["computing"] = False
         if progress is not None:
             progress.stop()
-        if sink is not None:
-            sink.close()
         interrupted = bool(state["signals"])
         summary = proc.summarize(results, problems, opts=opts, seconds=time.perf_counter() - t0,
                                  interrupted=interrupted, planned=jobs)
@@ -236,7 +234,7 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
                     "status is then 1. Exit 2: refused before any work (output folder locked by another "
                     "run, not writable or full, bad calibration, unreachable scheduler); 130: stopped by "
                     "Ctrl-C (the first lets the frames in progress finish, a second stops now); 143: "
-                    "stopped by SIGTERM. docs/reliability.md lists every fault.")
+                    "stopped by SIGTERM. docs/guide/faults.md lists every fault.")
     pr.add_argument("inputs", nargs="+", type=Path, help="raw frame files or folders")
     pr.add_argument("-o", "--out", type=Path, required=True, help="output folder")
     pr.add_argument("--layout", help="sensor layout; overrides the sidecar (imx250mzr, imx250myr, "
@@ -271,7 +269,7 @@ def add_parser(sub: Any, demosaic_methods: Sequence[str]) -> argparse.ArgumentPa
     pr.add_argument("--max-memory", metavar="SIZE",
                     help="largest estimated memory of one frame (e.g. 8G; default three quarters of the "
                          "physical memory; 0: no limit): a frame whose declared size needs more is refused "
-                         "unread (docs/reliability.md)")
+                         "unread (docs/guide/faults.md)")
     pr.add_argument("--quiet", action="store_true", help="no progress bar; only errors and failures")
     pr.add_argument("--json", action="store_true", help="machine-readable JSON lines on stdout "
                                                         "(one per frame, then a summary)")

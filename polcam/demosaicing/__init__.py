@@ -10,7 +10,8 @@ of a given layout samples it), used by the benchmarks and the tests.
 Every module in this package whose name does not start with an underscore is a
 method module; importing the package imports them all, and each registers itself with
 :func:`register`.  The ``lmmse`` training and model selection are tooling, beside
-the benchmarks (:mod:`polcam.bench.lmmse_training`, :mod:`polcam.bench.demosaic_validation`).  docs/demosaic.md describes the methods.
+the benchmarks (:mod:`polcam.bench.lmmse_training`, :mod:`polcam.bench.demosaic_validation`).
+docs/methods/demosaicing.md describes the methods.
 """
 
 from __future__ import annotations

@@ -47,7 +47,7 @@ class MethodSpec:
     mono, color
         Whether the method accepts mono / colour layouts.
     reference
-        Citation of the published method it follows (docs/demosaic.md has the
+        Citation of the published method it follows (docs/methods/demosaic-<name>.md has the
         details and the departures).
     """
 
@@ -65,7 +65,7 @@ _METHODS: dict[str, MethodSpec] = {}
 _ORDER = ("bilinear", "eari", "lmmse")
 
 #: The method :func:`demosaic` runs when none is named, per kind of layout: the best
-#: polcam has (docs/demosaic.md says why; docs/benchmarks.md has the figures); process,
+#: polcam has (docs/decisions/default-demosaicing.md says why; docs/benchmarks.md has the figures); process,
 #: capture and the demo use the same.  Colour: ``lmmse``, the best method on the real
 #: stacks on every metric and within the 1 s budget per 2448 x 2048 frame (the
 #: validation set ranks the slower ``lmmse-eari`` blend first).
@@ -193,6 +193,21 @@ def demosaic(
         this kind of layout (mono/colour).
     FrameReadError
         A raw array that is not a finite 2-D integer or float array.
+
+    Examples
+    --------
+    Uniform light on an 8 x 8 ``imx250mzr`` mosaic (cell ``90 45 / 135 0``):
+
+    >>> import numpy as np
+    >>> import polcam
+    >>> raw = np.tile([[0.1, 0.3], [0.5, 0.7]], (4, 4))
+    >>> stack = polcam.demosaic(raw, layout="imx250mzr")
+    >>> stack.shape, stack.dtype
+    ((4, 8, 8), dtype('float32'))
+    >>> stack[:, 4, 4]  # I0, I45, I90, I135 of one pixel
+    array([0.7, 0.3, 0.1, 0.5], dtype=float32)
+    >>> polcam.demosaic(raw, layout="imx250mzr", resolution="cell").shape
+    (4, 4, 4)
     """
     if layout is None:
         if isinstance(raw, Frame) and raw.layout is not None:

@@ -1,4 +1,4 @@
-"""The shared-ratio second stage of ``lmmse`` on colour layouts (private; docs/demosaic.md).
+"""The shared-ratio second stage of ``lmmse`` on colour layouts (private; docs/methods/demosaic-lmmse.md).
 
 The ratio stage of :func:`polcam.demosaicing.lmmse.second_stage` interpolates the
 polarization ratio ``q = I / (S0 / 2)`` of each (angle, colour) lattice on its own: on a

@@ -29,7 +29,7 @@ demosaicked, the four results are interleaved back into a full-resolution
 3-channel polarization mosaic, and each channel goes through the mono
 algorithm above.
 
-Departures from the paper (docs/demosaic.md has the details and the
+Departures from the paper (docs/methods/demosaic-eari.md has the details and the
 measurements behind them):
 
 * Any 2x2 arrangement of the four angles, not only IMX250's ``90 45 /
@@ -88,7 +88,7 @@ __all__ = ["EARI_PARAMS", "REFERENCE", "eari"]
 REFERENCE = ("M. Morimatsu, Y. Monno, M. Tanaka, M. Okutomi, \"Monochrome and Color Polarization "
              "Demosaicking Using Edge-Aware Residual Interpolation\", IEEE ICIP 2020 (arXiv:2007.14292)")
 
-#: Parameters of ``eari`` (docs/demosaic.md says how they were chosen).
+#: Parameters of ``eari`` (docs/methods/demosaic-eari.md says how they were chosen).
 EARI_PARAMS: dict[str, float | str] = {
     # added to the smoothed edge indicators before inverting them into weights,
     # relative to the mean of the mosaic

@@ -10,7 +10,7 @@ all four angles and all three colours, it uses the correlations between angles
 (S1, S2 vary more slowly than S0) and between colours that a per-lattice
 interpolation ignores, which is what DoLP and AoLP need.
 
-As implemented here (docs/demosaic.md has the details):
+As implemented here (docs/methods/demosaic-lmmse.md has the details):
 
 * The raw is cut into 4x4 blocks; the 4 x 4 x 4 angles (x 3 colours) outputs of a
   block are one linear map of the 12 x 12 raw samples of the block and its eight
@@ -293,7 +293,7 @@ def _job(blocks: np.ndarray, weights: np.ndarray, out: np.ndarray, r0: int, r1: 
         dst[...] = y[:, :, k].transpose(0, 2, 1, 3, 4)
 
 
-#: Parameters of the second stage (docs/demosaic.md says how they were chosen).
+#: Parameters of the second stage (docs/methods/demosaic-lmmse.md says how they were chosen).
 LMMSE_PARAMS: dict[str, float | str] = {
     # second stage per kind of layout: "shared-ratio" (colour only), "ratio" (polarization ratio of
     # each lattice), "difference" or "none"

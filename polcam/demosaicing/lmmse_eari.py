@@ -22,7 +22,7 @@ failures of ``eari`` that matter are the large ones (colour edges).  So:
 (both estimates are functions of it).  Both methods keep the measured samples
 and recover uniform and affine scenes exactly, so the blend does too.  ``tau``
 and ``sigma`` were chosen on polcam's validation set
-(:mod:`polcam.bench.demosaic_validation`); docs/demosaic.md gives the table.
+(:mod:`polcam.bench.demosaic_validation`); docs/methods/demosaic-lmmse-eari.md gives the table.
 """
 
 from __future__ import annotations
@@ -39,9 +39,9 @@ from polcam.mosaic import Layout
 __all__ = ["BLEND_PARAMS", "REFERENCE", "blend_weight", "lmmse_eari", "run_blend"]
 
 REFERENCE = ("a per-pixel blend of polcam's lmmse and eari, weighted by their local relative "
-             "disagreement (docs/demosaic.md)")
+             "disagreement (docs/methods/demosaic-lmmse-eari.md)")
 
-#: Parameters of the blend (docs/demosaic.md says how they were chosen).
+#: Parameters of the blend (docs/methods/demosaic-lmmse-eari.md says how they were chosen).
 BLEND_PARAMS: dict[str, float] = {
     # lmmse takes over where the relative disagreement d / m^2 reaches tau
     "tau": 0.02,

@@ -160,6 +160,27 @@ def read_frame(
     PixelFormatError
         Unknown pixel format (the message lists the supported ones) or one
         computed in the camera.
+
+    Examples
+    --------
+    A 4 x 4 mosaic of 12-bit counts, written with its sidecar and read back:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> from polcam import Frame, read_frame
+    >>> from polcam.io import write_frame
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> mosaic = np.tile(np.array([[0, 1000], [2000, 4095]], dtype=np.uint16), (2, 2))
+    >>> path = write_frame(Path(tmp.name) / "frame.npy", Frame(mosaic, layout="imx250mzr", bit_depth=12))
+    >>> sorted(p.name for p in Path(tmp.name).iterdir())
+    ['frame.json', 'frame.npy']
+    >>> frame = read_frame(path)
+    >>> str(frame.layout), frame.bit_depth, frame.mosaic.shape, frame.mosaic.dtype
+    ('imx250mzr', 12, (4, 4), dtype('uint16'))
+    >>> frame.normalized()[0, :2]  # (counts - black) / (white - black)
+    array([0.        , 0.24420024], dtype=float32)
+    >>> tmp.cleanup()
     """
     p = Path(path)
     check_raw_file(p)

@@ -1,6 +1,6 @@
 """Clipped samples: rebuilt from the unclipped angles; clipped highlights filled from their border.
 
-Used by ``polarized-residual`` (docs/algorithm.md, polarized-residual: declipping before step 1,
+Used by ``polarized-residual`` (docs/methods/polarized-residual.md: declipping before step 1,
 and the clipped highlights' fill of step 7).
 """
 

@@ -1,6 +1,6 @@
 """Which part of the polarized light is the diffuse light's own: its AoLP against the image's edges.
 
-Used by ``polarized-residual`` (docs/algorithm.md, polarized-residual, "Diffuse polarization").
+Used by ``polarized-residual`` (docs/methods/polarized-residual.md, step 3).
 """
 
 from __future__ import annotations

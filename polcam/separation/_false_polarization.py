@@ -1,6 +1,6 @@
 """The polarization that demosaicing draws at intensity edges, fitted and removed from a stack.
 
-Used by ``polarized-residual`` (docs/algorithm.md, polarized-residual, step 1b).
+Used by ``polarized-residual`` (docs/methods/polarized-residual.md, step 0).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Where a pixel stands above its surroundings in the illuminant's colour: the evidence of a highlight.
 
-Used by ``polarized-residual`` (docs/algorithm.md, polarized-residual, "Highlight evidence"): the
+Used by ``polarized-residual`` (docs/methods/polarized-residual.md, "Highlight evidence"): the
 specular layer of a pixel is bounded by how far the pixel rises above the floor of its
 neighbourhood, in every channel at once, by a multiple of the illuminant's colour.
 """

@@ -11,7 +11,7 @@ polarizer of efficiency ``eta_c`` (the diattenuation, 1 for an ideal one)
 measures ``eta_c Isv_c``.  Real wire-grid polarizers (on-chip ones too) have a
 wavelength-dependent efficiency, and on the real stacks polcam is tested on the
 polarized light's colour differs from the neutral colour of the white surfaces
-and of the brightest highlights (docs/algorithm.md, polarized-residual).
+and of the brightest highlights (docs/methods/polarized-residual.md).
 
 :func:`estimate_illuminant` therefore:
 
@@ -132,7 +132,7 @@ def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None)
         (3,) float64 with mean 1 (ones when the polarization is not significant).
     """
     _checked_stack(stack)
-    eff = None if efficiency is None else _check_efficiency(efficiency)
+    eff = None if efficiency is None else check_efficiency(efficiency)
     return _unit_mean(projected_chromaticity(stack, efficiency=eff, own_colour=OWN_COLOUR))
 
 
@@ -166,7 +166,7 @@ def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:
     return _unit_mean(xp.to_numpy(xp.astype(ic[ok][sel], xp.float64).sum(axis=0)))
 
 
-def _check_efficiency(efficiency: object) -> np.ndarray:
+def check_efficiency(efficiency: object) -> np.ndarray:
     e = np.asarray(efficiency, dtype=np.float64).reshape(-1)
     if e.size != 3 or not np.all(np.isfinite(e)) or np.any(e <= 0) or np.any(e > 1):
         raise MethodError(f"polarizer efficiency {efficiency!r}: expected three numbers in (0, 1] (R, G, B)")
@@ -192,7 +192,7 @@ def estimate_illuminant(stack: np.ndarray, *, efficiency: object = None,
     IlluminantEstimate
     """
     if efficiency is not None:
-        eff = _check_efficiency(efficiency)
+        eff = check_efficiency(efficiency)
         pol = polarized_colour(stack, efficiency=eff)
         return IlluminantEstimate(pol, eff / eff.max(), "calibration", pol, highlight_colour(stack))
     terms, ok = _projection_terms(_checked_stack(stack), None, OWN_COLOUR)
@@ -294,7 +294,7 @@ def _total_chromaticity(terms: Any, ok: Any, significance: float) -> np.ndarray:
     return total / total.sum()
 
 
-def _plane_basis() -> np.ndarray:
+def plane_basis() -> np.ndarray:
     """Two orthonormal vectors spanning the chromaticity plane (sum of components 0), (2, 3) float64."""
     return np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.array([[np.sqrt(2.0)], [np.sqrt(6.0)]])
 
@@ -327,7 +327,7 @@ def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int | None = None)
     bh, bw = h // hb, w // wb
     b = xp.to_numpy(t[:hb * bh, :wb * bw].reshape(hb, bh, wb, bw, 3).sum(axis=(1, 3)).reshape(-1, 3))
     r = b - np.outer(b.sum(axis=1), c)
-    basis = _plane_basis()
+    basis = plane_basis()
     d = basis @ (c - 1.0 / 3.0)
     cov = basis @ (r.T @ r) @ basis.T / (s * s)
     if np.linalg.det(cov) <= 1e-30 * max(float(np.trace(cov)) ** 2, 1e-300):

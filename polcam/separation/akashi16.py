@@ -148,27 +148,8 @@ def sparse_nmf(
     with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
         while iterations < max_iter:
             iterations += 1
-            # 1. H update; W_bar^T W_bar H = W_bar^T (W_bar H) = W_bar^T recon.
-            num_h = w.T @ data
-            den_h = w.T @ recon
-            den_h += lam
-            h *= num_h
-            if lam > 0.0:
-                h /= den_h
-            else:  # without the penalty a zero reconstruction gives 0 / 0: keep 0
-                np.divide(h, den_h, out=h, where=den_h > 0.0)
-                h[den_h <= 0.0] = 0.0
-            # 2. W_d update on the diffuse residual.
-            h_d = h[1:]
-            resid = data - w_s @ h[:1]
-            np.maximum(resid, 0.0, out=resid)
-            h_dc = h_d * weights
-            hht = h_dc @ h_d.T  # (K, K)
-            vht = resid @ h_dc.T  # (3, K)
-            rht = w_d @ hht  # (3, K)
-            num_w = vht + w_d * (rht * w_d).sum(axis=0)
-            den_w = rht + w_d * (vht * w_d).sum(axis=0)
-            w_d = _normalise_columns(w_d * np.where(den_w > 0.0, num_w / den_w, 1.0))
+            _update_h(h, w, data, recon, lam)
+            w_d = _update_w(w_d, w_s, h, data, weights)
             w = np.hstack([w_s, w_d])
             # 3. Objective and stop rule.
             recon = w @ h
@@ -184,6 +165,33 @@ def sparse_nmf(
             previous = objective
     h = np.nan_to_num(h, nan=0.0, posinf=0.0, neginf=0.0)
     return w, h, {"iterations": iterations, "converged": converged, "objective": objective}
+
+
+def _update_h(h: np.ndarray, w: np.ndarray, data: np.ndarray, recon: np.ndarray, lam: float) -> None:
+    """1. The multiplicative H update, in place; ``W_bar^T W_bar H = W_bar^T (W_bar H) = W_bar^T recon``."""
+    num_h = w.T @ data
+    den_h = w.T @ recon
+    den_h += lam
+    h *= num_h
+    if lam > 0.0:
+        h /= den_h
+    else:  # without the penalty a zero reconstruction gives 0 / 0: keep 0
+        np.divide(h, den_h, out=h, where=den_h > 0.0)
+        h[den_h <= 0.0] = 0.0
+
+
+def _update_w(w_d: np.ndarray, w_s: np.ndarray, h: np.ndarray, data: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """2. The multiplicative update of the diffuse colours ``W_d`` (unit columns) on the diffuse residual."""
+    h_d = h[1:]
+    resid = data - w_s @ h[:1]
+    np.maximum(resid, 0.0, out=resid)
+    h_dc = h_d * weights
+    hht = h_dc @ h_d.T  # (K, K)
+    vht = resid @ h_dc.T  # (3, K)
+    rht = w_d @ hht  # (3, K)
+    num_w = vht + w_d * (rht * w_d).sum(axis=0)
+    den_w = rht + w_d * (vht * w_d).sum(axis=0)
+    return _normalise_columns(w_d * np.where(den_w > 0.0, num_w / den_w, 1.0))
 
 
 @register("akashi16", kind="single", reference=REFERENCE)
@@ -234,38 +242,18 @@ def separate_akashi16(
         Bad image or option values.
     """
     img = as_rgb_image(image, method="akashi16")
-    for name, value, least in (
-        ("n_diffuse", n_diffuse, 1), ("max_iter", max_iter, 1), ("restarts", restarts, 1), ("seed", seed, 0)
-    ):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
-            kind = "positive" if least else "non-negative"
-            raise MethodError(f"method 'akashi16': {name}={value!r}: expected a {kind} integer")
-    for name, value, positive in (("lam", lam, False), ("tol", tol, True)):
-        number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
-        if not (number and np.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
-            kind = "positive" if positive else "non-negative"
-            raise MethodError(f"method 'akashi16': {name}={value!r}: expected a {kind} number")
-
+    _check_options(n_diffuse=n_diffuse, max_iter=max_iter, restarts=restarts, seed=seed, lam=lam, tol=tol)
     h_img, w_img, _ = img.shape
     pixels = img.reshape(-1, 3)
-    n_pix = pixels.shape[0]
     colours, inverse, counts = np.unique(pixels, axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
-    n_col = colours.shape[0]
     data = np.ascontiguousarray(colours.T)
     weights = counts.astype(np.float64)
     k = int(n_diffuse)
     rng = np.random.default_rng(int(seed))
     best: tuple[np.ndarray, np.ndarray, dict[str, Any]] | None = None
     for _ in range(int(restarts)):
-        # Per-pixel initial coefficients, drawn as for the full pixel matrix, then
-        # averaged over each group of identical pixels (see the module docstring).
-        per_pixel = rng.uniform(1.0, 255.0, size=(k + 1, n_pix)) / 255.0
-        h_init = np.empty((k + 1, n_col))
-        for row in range(k + 1):
-            h_init[row] = np.bincount(inverse, weights=per_pixel[row], minlength=n_col)
-        h_init /= weights
-        w_init = rng.uniform(1.0, 255.0, size=(3, k)) / 255.0
+        h_init, w_init = _initial(rng, k, inverse, weights)
         run = sparse_nmf(data, weights, h_init, w_init, lam=float(lam), tol=float(tol), max_iter=int(max_iter))
         if best is None or run[2]["objective"] < best[2]["objective"]:
             best = run
@@ -279,3 +267,34 @@ def separate_akashi16(
         "restarts": int(restarts),
     }
     return finish_diffuse(diffuse, img), info
+
+
+def _check_options(*, n_diffuse: int, max_iter: int, restarts: int, seed: int, lam: float, tol: float) -> None:
+    for name, value, least in (
+        ("n_diffuse", n_diffuse, 1), ("max_iter", max_iter, 1), ("restarts", restarts, 1), ("seed", seed, 0)
+    ):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+            kind = "positive" if least else "non-negative"
+            raise MethodError(f"method 'akashi16': {name}={value!r}: expected a {kind} integer")
+    for name, value, positive in (("lam", lam, False), ("tol", tol, True)):
+        number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+        if not (number and np.isfinite(value) and (value > 0.0 if positive else value >= 0.0)):
+            kind = "positive" if positive else "non-negative"
+            raise MethodError(f"method 'akashi16': {name}={value!r}: expected a {kind} number")
+
+
+def _initial(rng: np.random.Generator, k: int, inverse: np.ndarray,
+             weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Random initial coefficients (K + 1, colours) and diffuse colours (3, K), uniform in [1, 255] / 255.
+
+    The coefficients are drawn per pixel, as for the full pixel matrix, then averaged over each
+    group of identical pixels (see the module docstring).
+    """
+    n_col = weights.shape[0]
+    per_pixel = rng.uniform(1.0, 255.0, size=(k + 1, inverse.shape[0])) / 255.0
+    h_init = np.empty((k + 1, n_col))
+    for row in range(k + 1):
+        h_init[row] = np.bincount(inverse, weights=per_pixel[row], minlength=n_col)
+    h_init /= weights
+    w_init = rng.uniform(1.0, 255.0, size=(3, k)) / 255.0
+    return h_init, w_init

@@ -1,6 +1,6 @@
 """``polarized-residual``: polcam's own separation: remove the specular light that polarization shows.
 
-The physics (docs/algorithm.md, polarized-residual, gives the equations and the
+The physics (docs/methods/polarized-residual.md gives the equations and the
 validation sweeps behind every choice):
 
 * Specular reflection has the illuminant's colour ``G`` and is partly polarized,
@@ -29,8 +29,8 @@ validation sweeps behind every choice):
 
 One implementation for numpy and PyTorch: the array code runs over :mod:`polcam._xp`, the
 neighbourhood filters are :mod:`polcam._imageops` (OpenCV for numpy, the same kernels on a torch
-device); a ``torch.Tensor`` stack, or ``device=``, runs it on PyTorch (docs/algorithm.md,
-"Backends").
+device); a ``torch.Tensor`` stack, or ``device=``, runs it on PyTorch
+(docs/methods/polarized-residual.md, "Backends").
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ from polcam.separation._diffuse_polarization import radial_share
 from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import peak_excess
 from polcam.separation._illuminant import SATURATED, estimate_illuminant
-from polcam.separation._polarization_noise import _axis_debias, _reduction, _stokes_noise
-from polcam.separation._residual import coherent_gate, gradient_ratio, residual_steps
+from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
+from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
 from polcam.separation._registry import register
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "DEFAULTS"]
@@ -59,7 +59,7 @@ REFERENCE = (
     "IEEE TIP 30 2021; G. A. Atkinson & E. R. Hancock, IEEE TIP 15(6) 2006; Kajiyama et al., WACV 2023"
 )
 
-#: Default options (docs/algorithm.md gives the benchmark behind each).
+#: Default options (docs/methods/polarized-residual.md gives the benchmark behind each).
 DEFAULTS: dict[str, Any] = {
     "illuminant": None,          # None: estimate; or an RGB triple
     "efficiency": None,          # per-colour polarizer efficiency from a calibration, (3,) in (0, 1]
@@ -83,12 +83,20 @@ DEFAULTS: dict[str, Any] = {
     "device": None,              # None: numpy and OpenCV; "cpu", "cuda", ...: PyTorch on that device (torch extra)
 }
 
-
-
-
+#: The coherent polarization's Gaussian kernel ``k_s``: the image's larger side over this, and at least
+#: ``_COHERENT_MIN_PX``: demosaicing and noise leave polarization of alternating sign from pixel to pixel,
+#: which a few pixels' smoothing cancels, while a highlight's polarization is coherent over it.
+_COHERENT_PER_SIDE = 200
+_COHERENT_MIN_PX = 3.0
+#: Side of the median filter of the highlight evidence (step 5): it keeps demosaicing's one- or two-pixel
+#: overshoot at edges out of both the pixel's level and its surroundings' floor.
+_EVIDENCE_MEDIAN = 5
+#: Least light (channel sum) by which a removed share is divided: far below one 8-bit code value, so it
+#: only keeps black pixels from dividing by zero.
+_LIGHT_GUARD = 1e-6
 #: Share of a clipped region's border light that the layer must remove for the region to be a highlight
 #: (filled): a sweep on the randomized family's validation split (0.02 / 0.03: 29.34 dB, 0.05 / 0.07:
-#: 29.18, the fill of one scene lost; docs/algorithm.md, polarized-residual).
+#: 29.18, the fill of one scene lost; docs/methods/polarized-residual.md).
 _HIGHLIGHT_BORDER = 0.03
 
 
@@ -235,47 +243,112 @@ def _on_device(stack: Any, device: str | None) -> tuple[Any, bool]:
 
 
 def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[Any, dict[str, Any]]:
-    """The colour path of :func:`_separate` on a (4, H, W, 3) float32 stack (numpy or torch)."""
+    """The colour path of :func:`_separate` on a (4, H, W, 3) float32 stack (numpy or torch).
+
+    Steps 0-6 of docs/methods/polarized-residual.md ("Colour stacks, as implemented"), one function
+    each; with ``unpolarized="measured"`` :func:`polcam.separation._residual.residual_steps` takes the
+    place of steps 2 and 4.
+    """
     xp = namespace(s)
-    h, w = s.shape[1:3]
     measured = s.mean(axis=0)
     clipped_any = (s >= SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
+    s = _declip(s, opts)
+    g, eff, est, source = _illuminant(s, opts)
+    gx = xp.asarray(g, like=s)                              # the same (3,) float32 where the stack is
+    v = _polarization_minimum(s, gx, eff, opts)
+    ic, imin = v["ic"], v["imin"]
+    lum = ic.mean(axis=-1)
+    if opts["unpolarized"] == "measured":
+        v.update(s=s, g=g, gx=gx, measured=measured, clipped_any=clipped_any)
+        diffuse, extra = residual_steps(v, opts, keep)
+        spec, floor = extra["spec"], extra["floor"]
+        ratio, ratio_source = extra["ratio"], extra["ratio_source"]
+    else:
+        # where coherent polarized light marks a highlight (the clipped regions' fill asks it)
+        floor, _, _, spec = highlight_mask(v["a_coh"], lum, v["k_small"], g, float(opts["polarized_threshold"]))
+        diffuse = imin
+        ratio, ratio_source = 0.0, "none"
+        if keep is not None:
+            keep["imin"] = xp.astype(imin, xp.float32)
+    if opts["edge_polarization"]:
+        diffuse = _edge_polarization_given_back(diffuse, v, lum)
+        if keep is not None:
+            keep["diffuse_polarization"] = xp.astype(diffuse, xp.float32)
+    if opts["unpolarized"] == "none" and opts["one_colour"]:
+        diffuse = _one_specular_colour(diffuse, ic, gx)
+    if opts["evidence"]:
+        diffuse = _highlight_evidence(diffuse, ic, gx, window=_odd(float(opts["evidence_window"]) * v["side"]))
+    if keep is not None:
+        keep["evidence_bounded"] = xp.astype(diffuse, xp.float32)
+    diffuse, clip_stats = _clipped_highlights(diffuse, measured, ic, spec, gx,
+                                              removed_share=opts["unpolarized"] == "none")
+    info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
+            "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
+            "polarized_floor": floor}
+    if est is not None:
+        info["polarized_colour"] = [float(x) for x in est.polarized]
+    return xp.astype(_within_measured(diffuse, measured, gx), xp.float32), info
+
+
+def _coherent_kernel(side: int) -> int:
+    """Side of the Gaussian kernel over which polarization is coherent, ``k_s``, for an image's larger side."""
+    return _odd(max(_COHERENT_MIN_PX, side / _COHERENT_PER_SIDE))
+
+
+def _declip(s: Any, opts: dict[str, Any]) -> Any:
+    """Step 0: clipped samples rebuilt (``declip``), demosaicing's edge polarization removed (``edge_fit``)."""
     if opts["declip"]:
         s = declipped(s)
     if opts["edge_fit"]:
         s = without_edge_polarization(s, order=int(opts["edge_fit"]))
-    ic = s.mean(axis=0)
-    q = 0.5 * (s[0] - s[2])
-    u = 0.5 * (s[1] - s[3])
+    return s
 
-    # illuminant and per-colour polarizer efficiency
+
+def _illuminant(s: Any, opts: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, Any, str]:
+    """Step 1: the illuminant's colour ``G`` and the per-colour polarizer efficiency.
+
+    Returns ``G`` ((3,) float32, mean 1), the efficiency ((3,) float64 in (0, 1]), the estimate
+    (None when ``illuminant`` is given) and the source's name for ``info``.
+    """
     if opts["illuminant"] is not None:
         g = np.asarray(opts["illuminant"], dtype=np.float64)
         est = None
         eff = np.ones(3) if opts["efficiency"] is None else np.asarray(opts["efficiency"], np.float64)
         if opts["efficiency"] is not None:
-            from polcam.separation._illuminant import _check_efficiency
+            from polcam.separation._illuminant import check_efficiency
 
-            eff = _check_efficiency(eff)
+            eff = check_efficiency(eff)
         source = "given"
     else:
         est = estimate_illuminant(s, efficiency=opts["efficiency"])
         g = est.colour
         eff = est.efficiency if est.source == "calibration" else np.ones(3)
         source = est.source
-    g = (g / g.mean()).astype(np.float32)
-    gx = xp.asarray(g, like=s)                              # the same (3,) float32 where the stack is
+    return (g / g.mean()).astype(np.float32), eff, est, source
+
+
+def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]) -> dict[str, Any]:
+    """Step 2: ``Imin``, each channel's mean less its debiased polarized amplitude, and the coherent polarization.
+
+    The Stokes components are divided by the polarizer efficiency, smoothed over ``k_s`` pixels
+    (demosaicing and noise leave polarization of alternating sign that this cancels; a highlight's is
+    coherent), and their common axis gives the signed amplitude of every channel along it.  Returns
+    the quantities later steps use: ``ic``, ``q``, ``u`` (H, W, 3), ``isv``, ``imin``, ``amp``
+    (smoothed) and ``amp_px`` (the pixel's own) signed amplitudes, ``sig`` (Stokes noise),
+    ``a_coh`` (H, W) the coherent amplitude in units of ``G``, ``k_small`` and ``side``.
+    """
+    xp = namespace(s)
+    h, w = s.shape[1:3]
+    ic = s.mean(axis=0)
+    q = 0.5 * (s[0] - s[2])
+    u = 0.5 * (s[1] - s[3])
     if not np.all(eff == 1):
         effx = xp.asarray(eff.astype(np.float32), like=s)
         q = q / effx
         u = u / effx
-    sig = _stokes_noise(s, ic)
-
-    # 1. coherent polarization: Stokes components smoothed over a few pixels (demosaicing and noise
-    #    leave polarization of alternating sign that this cancels; a highlight's is coherent); their
-    #    common axis and the signed amplitude of every channel along it
+    sig = stokes_noise(s, ic)
     side = max(h, w)
-    k_small = _odd(max(3.0, side / 200))
+    k_small = _coherent_kernel(side)
     qs = _imageops.gaussian(q, k_small)
     us = _imageops.gaussian(u, k_small)
     qq = (qs / gx).sum(axis=-1)
@@ -287,70 +360,79 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
     amp = qs * c2 + us * s2                                 # (H, W, 3) signed
     amp_px = q * c2 + u * s2                                # the same, unsmoothed (the pixel's own colours)
     # the polarized amplitude with the noise's bias removed: unbiased along the axis where the smoothed
-    # amplitude fixes it, shrunk by the noise elsewhere (_polarization_noise._axis_debias)
+    # amplitude fixes it, shrunk by the noise elsewhere (_polarization_noise.axis_debias)
     if opts["noise"] == "off":
         isv = xp.hypot(q, u)
     else:
-        isv = _axis_debias(q, u, c2, s2, amp, sig, _reduction(k_small), opts["noise"])
+        isv = axis_debias(q, u, c2, s2, amp, sig, noise_reduction(k_small), opts["noise"])
     imin = xp.maximum(ic - isv, 0.0)
     # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
     # colour demosaicing's polarization errors differ between channels and partly cancel in it
     a_coh = xp.astype(nn / 3.0, xp.float32)
+    return dict(ic=ic, q=q, u=u, isv=isv, imin=imin, amp=amp, amp_px=amp_px, a_coh=a_coh, sig=sig,
+                k_small=k_small, side=side)
 
-    lum = ic.mean(axis=-1)
-    k_ctx = _odd(opts["context"] * side)
-    if opts["unpolarized"] == "measured":
-        v = dict(s=s, g=g, gx=gx, ic=ic, imin=imin, isv=isv, amp=amp, amp_px=amp_px, a_coh=a_coh, sig=sig,
-                 k_small=k_small, side=side, measured=measured, clipped_any=clipped_any)
-        diffuse, extra = residual_steps(v, opts, keep)
-        spec, floor = extra["spec"], extra["floor"]
-        ratio, ratio_source = extra["ratio"], extra["ratio_source"]
-    else:
-        # 2. where coherent polarized light marks a highlight (the clipped regions' fill asks it)
-        floor, a_eff, lum_s, _ = coherent_gate(a_coh, lum, k_small, float(opts["polarized_threshold"]),
-                                               float(g.mean()))
-        spec = a_eff * float(g.mean()) > xp.maximum(opts["polarized_threshold"] * lum_s, 1.0 / 255)
-        diffuse = imin
-        ratio, ratio_source = 0.0, "none"
-        if keep is not None:
-            keep["imin"] = xp.astype(imin, xp.float32)
-    # 3. diffuse polarization: the polarized light along the local edge normal (the normal's azimuth
-    #    at occluding contours) is the diffuse light's own and is given back
-    if opts["edge_polarization"]:
-        share = radial_share(q, u, lum, smooth=_odd(2 * k_small + 1))
-        diffuse = xp.minimum(diffuse + share * (ic - imin), ic)
-        if keep is not None:
-            keep["diffuse_polarization"] = xp.astype(diffuse, xp.float32)
-    # one specular colour: what is removed is the largest multiple of G under every channel's removal
-    # (the polarized light of the body's colour beyond it is the diffuse light's own)
-    if opts["unpolarized"] == "none" and opts["one_colour"]:
-        a = xp.maximum(xp.amin((ic - diffuse) / gx, axis=-1), 0.0)
-        diffuse = ic - a[..., None] * gx
-    # 4. highlight evidence: nothing is removed beyond the multiple of G by which the pixel rises
-    #    above its surroundings' floor (_highlight.peak_excess)
-    if opts["evidence"]:
-        excess = peak_excess(ic, gx, window=_odd(float(opts["evidence_window"]) * side), smooth=5)
-        diffuse = xp.maximum(diffuse, ic - excess[..., None] * gx)
-    if keep is not None:
-        keep["evidence_bounded"] = xp.astype(diffuse, xp.float32)
-    # a clipped region is a highlight when the layer removes specular light around it (_HIGHLIGHT_BORDER): a
-    # ramp over half that share either side of it, so that a pixel's vote does not switch under noise
+
+def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], lum: Any) -> Any:
+    """Step 3: the polarized light along the local edge normal is the diffuse light's own, given back.
+
+    At occluding contours the intensity gradient's axis is the normal's azimuth
+    (:func:`polcam.separation._diffuse_polarization.radial_share`, structure tensor smoothed over
+    ``2 k_s + 1`` pixels).  Returns (H, W, 3), at most ``Ic``.
+    """
+    xp = namespace(diffuse)
+    ic, imin = v["ic"], v["imin"]
+    share = radial_share(v["q"], v["u"], lum, smooth=_odd(2 * v["k_small"] + 1))
+    return xp.minimum(diffuse + share * (ic - imin), ic)
+
+
+def _one_specular_colour(diffuse: Any, ic: Any, gx: Any) -> Any:
+    """Step 4: what is removed is the largest multiple of ``G`` under every channel's removal.
+
+    The polarized light of the body's colour beyond it is the diffuse light's own.
+    """
+    xp = namespace(diffuse)
+    a = xp.maximum(xp.amin((ic - diffuse) / gx, axis=-1), 0.0)
+    return ic - a[..., None] * gx
+
+
+def _highlight_evidence(diffuse: Any, ic: Any, gx: Any, *, window: int) -> Any:
+    """Step 5: nothing is removed beyond the multiple of ``G`` by which the pixel rises above its surroundings.
+
+    The surroundings' floor is the opening by a square of side ``window``
+    (:func:`polcam.separation._highlight.peak_excess`).
+    """
+    xp = namespace(diffuse)
+    excess = peak_excess(ic, gx, window=window, smooth=_EVIDENCE_MEDIAN)
+    return xp.maximum(diffuse, ic - excess[..., None] * gx)
+
+
+def _clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, gx: Any,
+                        *, removed_share: bool) -> tuple[Any, dict[str, int]]:
+    """Step 6: regions clipped at all four angles filled when their border is a highlight of one material.
+
+    With ``removed_share`` a border pixel votes by the share of its light the layer removes: a ramp
+    over half of ``_HIGHLIGHT_BORDER`` either side of it, so that a pixel's vote does not switch
+    under noise; otherwise ``spec`` (the coherent polarized specular light's mask) votes.
+    """
+    xp = namespace(diffuse)
     light = None
-    if opts["unpolarized"] == "none":
+    if removed_share:
         light = ic.sum(axis=-1)
-        share = (ic - diffuse).sum(axis=-1) / xp.maximum(light, 1e-6)
+        share = (ic - diffuse).sum(axis=-1) / xp.maximum(light, _LIGHT_GUARD)
         spec = xp.clip((share - _HIGHLIGHT_BORDER) / _HIGHLIGHT_BORDER + 0.5, 0.0, 1.0)
-    diffuse, clip_stats = fill_clipped_highlights(diffuse, measured, spec, gx, light)
-    info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
-            "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
-            "polarized_floor": floor}
-    if est is not None:
-        info["polarized_colour"] = [float(x) for x in est.polarized]
-    # never more than was measured (declipping raises Ic where samples were clipped): lowered by the
-    # least multiple of the one specular colour that brings every channel under the measurement
+    return fill_clipped_highlights(diffuse, measured, spec, gx, light)
+
+
+def _within_measured(diffuse: Any, measured: Any, gx: Any) -> Any:
+    """Never more than was measured (declipping raises ``Ic`` where samples were clipped).
+
+    The layer is lowered by the least multiple of the one specular colour that brings every channel
+    under the measurement, then clipped to ``[0, measured]``.
+    """
+    xp = namespace(diffuse)
     over = xp.amax((diffuse - measured) / gx, axis=-1)
-    diffuse = xp.clip(diffuse - xp.maximum(over, 0.0)[..., None] * gx, 0.0, measured)
-    return xp.astype(diffuse, xp.float32), info
+    return xp.clip(diffuse - xp.maximum(over, 0.0)[..., None] * gx, 0.0, measured)
 
 
 def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
@@ -358,9 +440,10 @@ def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) 
 
     Without colour, k (the unpolarized / polarized ratio of the specular light) is chosen so that the
     diffuse layer ``Imin - k a`` carries as little of the highlights' spatial profile as possible:
-    least squares of the gradients, ``k = <grad Imin, grad a> / <grad a, grad a>`` over the
-    neighbourhood (docs/algorithm.md), clipped to [0, max_ratio].  ``stack`` is (4, H, W) float32,
-    numpy or torch.
+    the weighted median of the gradient ratios ``grad Imin / grad a``
+    (:func:`polcam.separation._residual.gradient_ratio`; docs/methods/polarized-residual.md),
+    clipped to [0, max_ratio].  ``stack`` is
+    (4, H, W) float32, numpy or torch.
     """
     xp = namespace(stack)
     s = stack
@@ -373,8 +456,7 @@ def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) 
     u = 0.5 * (s[1] - s[3])
     isv = xp.hypot(q, u)
     imin = xp.maximum(ic - isv, 0.0)
-    side = max(h, w)
-    k_small = _odd(max(3.0, side / 200))
+    k_small = _coherent_kernel(max(h, w))
     a_coh = xp.hypot(_imageops.gaussian(q, k_small), _imageops.gaussian(u, k_small))
     floor, a_eff, _, gate = coherent_gate(a_coh, ic, k_small, float(opts["polarized_threshold"]))
     a_pix = xp.astype(xp.minimum(a_eff, isv) * gate, xp.float32)

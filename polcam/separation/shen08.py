@@ -91,6 +91,9 @@ __all__ = ["REFERENCE", "separate_shen08", "modified_specular_free"]
 _WHITE = np.ones(3)
 # Relative channel spread below which a body colour counts as achromatic.
 _ACHROMATIC = 1e-9
+#: Step 4's cluster reaches this share of ``chroma_threshold`` beyond the nearest diffuse colour's
+#: distance ``d`` (the authors' released code).
+_MARGIN = 0.1
 
 
 def modified_specular_free(image: np.ndarray, offset: float | None = None) -> np.ndarray:
@@ -193,8 +196,23 @@ def separate_shen08(
             f"method 'shen08': dark_threshold={dark_threshold!r}: expected a number in [0, 1]"
         )
     h, w, _ = img.shape
-    n = h * w
-    flat = img.reshape(n, 3)
+    flat = img.reshape(h * w, 3)
+    chroma, combined, diffuse_px = _classes(flat, dark_threshold)
+    out = flat.copy()
+    pending = np.flatnonzero(combined | diffuse_px)  # unprocessed, row-major order
+    pending, clusters = _diffuse_clusters(flat, out, chroma, diffuse_px, pending, chroma_threshold)
+    pending, more = _combined_clusters(flat, out, chroma, np.flatnonzero(diffuse_px), pending, chroma_threshold)
+    info = {
+        "iterations": clusters + more,
+        "unprocessed": int(pending.size),
+        "converged": pending.size == 0,
+    }
+    return finish_diffuse(out.reshape(h, w, 3), img), info
+
+
+def _classes(flat: np.ndarray, dark_threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 1-2: MSF chromaticity (n, 3), and the combined and diffuse pixels (n,) bool."""
+    n = flat.shape[0]
     i_min = channel_min(flat)
     i_max = channel_max(flat)
     tau = float(i_min.mean())
@@ -204,11 +222,17 @@ def separate_shen08(
     np.divide(msf, total[:, None], out=chroma, where=total[:, None] > 0.0)
     combined = (i_min - tau) > tau
     diffuse_px = ((i_min - tau) < tau) & (i_max > dark_threshold)
+    return chroma, combined, diffuse_px
 
-    out = flat.copy()
-    pending = np.flatnonzero(combined | diffuse_px)  # unprocessed, row-major order
+
+def _diffuse_clusters(flat: np.ndarray, out: np.ndarray, chroma: np.ndarray, diffuse_px: np.ndarray,
+                      pending: np.ndarray, chroma_threshold: float) -> tuple[np.ndarray, int]:
+    """Step 3: clusters seeded by the brightest unprocessed diffuse pixel; ``out`` updated in place.
+
+    Returns the pixels still unprocessed and the number of clusters.
+    """
+    i_max = channel_max(flat)
     clusters = 0
-    # Step 3: clusters seeded by the brightest unprocessed diffuse pixel.
     while pending.size:
         cand = pending[diffuse_px[pending]]
         if cand.size == 0:
@@ -223,25 +247,31 @@ def separate_shen08(
         keep = np.ones(pending.size, dtype=bool)
         keep[dist < chroma_threshold] = False
         pending = pending[keep]
-    # Step 4: combined pixels whose colour no diffuse pixel shows.
-    diffuse_idx = np.flatnonzero(diffuse_px)
-    if diffuse_idx.size:
-        while pending.size:
-            first = pending[0]
-            d = np.abs(chroma[diffuse_idx] - chroma[first]).sum(axis=1)
-            k = int(np.argmin(d))
-            ref = diffuse_idx[k]
-            body = out[ref].copy()
-            dist = np.abs(chroma[pending] - chroma[ref]).sum(axis=1)
-            sel = dist < d[k] + 0.1 * chroma_threshold
-            members = pending[sel]
-            alpha = _fit(flat[members], body, refit_negative=False)
-            out[members] = alpha[:, None] * body
-            clusters += 1
-            pending = pending[~sel]
-    info = {
-        "iterations": clusters,
-        "unprocessed": int(pending.size),
-        "converged": pending.size == 0,
-    }
-    return finish_diffuse(out.reshape(h, w, 3), img), info
+    return pending, clusters
+
+
+def _combined_clusters(flat: np.ndarray, out: np.ndarray, chroma: np.ndarray, diffuse_idx: np.ndarray,
+                       pending: np.ndarray, chroma_threshold: float) -> tuple[np.ndarray, int]:
+    """Step 4: combined pixels whose colour no diffuse pixel shows, each cluster around the nearest diffuse colour.
+
+    A cluster takes every unprocessed pixel within ``d + _MARGIN chroma_threshold`` of that
+    diffuse pixel's chromaticity.  Returns the pixels still unprocessed (all of them when no pixel
+    is diffuse) and the number of clusters.
+    """
+    clusters = 0
+    if not diffuse_idx.size:
+        return pending, clusters
+    while pending.size:
+        first = pending[0]
+        d = np.abs(chroma[diffuse_idx] - chroma[first]).sum(axis=1)
+        k = int(np.argmin(d))
+        ref = diffuse_idx[k]
+        body = out[ref].copy()
+        dist = np.abs(chroma[pending] - chroma[ref]).sum(axis=1)
+        sel = dist < d[k] + _MARGIN * chroma_threshold
+        members = pending[sel]
+        alpha = _fit(flat[members], body, refit_negative=False)
+        out[members] = alpha[:, None] * body
+        clusters += 1
+        pending = pending[~sel]
+    return pending, clusters

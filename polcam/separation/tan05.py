@@ -103,7 +103,13 @@ REFERENCE = (
 
 __all__ = ["REFERENCE", "separate_tan05", "specular_free_image", "shift_max_chromaticity"]
 
+#: ``3 I_max - T`` (relative to ``T``) at or under which a pixel is achromatic: its maximum chromaticity
+#: is 1/3 whatever its specular part, ``T_sf = 0`` and the logarithm is undefined; the same bound on
+#: ``3 Lambda_max - 1`` keeps the shift's denominator away from 0.
 _ACHROMATIC = 1e-12
+#: Added to ``epsilon_start / epsilon_step`` before it is floored, so that a schedule meant to land on 0
+#: (0.5 / 0.01) is not cut one level short by floating-point rounding.
+_LEVEL_ROUNDING = 1e-9
 
 
 def shift_max_chromaticity(pixels: np.ndarray, target: np.ndarray | float) -> np.ndarray:
@@ -224,97 +230,20 @@ def separate_tan05(
         Bad image or option values.
     """
     img = as_rgb_image(image, method="tan05")
-    _check_range("epsilon_start", epsilon_start, 0.0, np.inf)
-    _check_range("epsilon_step", epsilon_step, 0.0, np.inf, low_open=True)
-    _check_range("chroma_threshold", chroma_threshold, 0.0, 1.0)
-    _check_range("noise_threshold", noise_threshold, 0.0, 1.0)
-    _check_range("dark_threshold", dark_threshold, 0.0, 1.0)
-    _check_range("sf_max_chromaticity", sf_max_chromaticity, 1.0 / 3.0, 1.0, low_open=True)
-    if isinstance(max_sweeps, bool) or not isinstance(max_sweeps, (int, np.integer)) or max_sweeps < 1:
-        raise MethodError(f"method 'tan05': max_sweeps={max_sweeps!r}: expected a positive integer")
-
+    _check_options(epsilon_start, epsilon_step, chroma_threshold, noise_threshold, dark_threshold,
+                   sf_max_chromaticity, max_sweeps)
     h, w, _ = img.shape
-    n = h * w
-    flat = img.reshape(n, 3).copy()
+    flat = img.reshape(h * w, 3).copy()
     dark = np.all(flat < dark_threshold, axis=1)
-    col = np.arange(n) % w
-    row = np.arange(n) // w
-    has_right = col < w - 1
-    has_below = row < h - 1
-    # log T - log T_sf up to a constant (Lambda_sf cancels; see module docstring).
-    ld = _log_ratio(flat)
-
-    def deltas(p: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """Delta of the pairs (p, p + 1) and (p, p + w) (all pixels if None); NaN where no pair."""
-        if p is None:
-            dx = np.full(n, np.nan)
-            dy = np.full(n, np.nan)
-            dx[:-1] = np.abs(ld[1:] - ld[:-1])
-            dx[~has_right] = np.nan
-            dy[: n - w] = np.abs(ld[w:] - ld[: n - w])
-            return dx, dy
-        dx = np.full(p.shape, np.nan)
-        dy = np.full(p.shape, np.nan)
-        r = has_right[p]
-        dx[r] = np.abs(ld[p[r] + 1] - ld[p[r]])
-        b = has_below[p]
-        dy[b] = np.abs(ld[p[b] + w] - ld[p[b]])
-        return dx, dy
-
-    def flags(p: np.ndarray | None, eps: float, excluded: np.ndarray) -> np.ndarray:
-        """0 none, 1 specular pair to the right, 2 specular pair below (right first)."""
-        dx, dy = deltas(p)
-        live = ~excluded if p is None else ~excluded[p]
-        with np.errstate(invalid="ignore"):
-            fx = live & (dx > eps)
-            fy = live & ~fx & (dy > eps)
-        return np.where(fx, 1, np.where(fy, 2, 0)).astype(np.int8)
-
-    n_levels = int(np.floor(epsilon_start / epsilon_step + 1e-9)) + 1
-    levels = [max(epsilon_start - k * epsilon_step, 0.0) for k in range(n_levels)]
-    if levels[-1] > 0.0:
-        levels.append(0.0)
-
+    grid = _Grid(flat, h, w)
     sweeps = 0
     levels_run = 0
     remaining = 0
     exhausted = False
-    for eps in levels:
+    for eps in _levels(epsilon_start, epsilon_step):
         levels_run += 1
-        excluded = dark.copy()
-        flag = flags(None, eps, excluded)
-        count = int(np.count_nonzero(flag))
-        while count:
-            if sweeps >= max_sweeps:
-                exhausted = True
-                break
-            sweeps += 1
-            done = np.zeros(n, dtype=bool)
-            touched: list[np.ndarray] = []
-            for code, offset in ((1, 1), (2, w)):
-                pos = np.flatnonzero(flag == code)
-                parity = (pos % w if code == 1 else pos // w) % 2
-                for par in (0, 1):
-                    p = pos[parity == par]
-                    q = p + offset
-                    free = ~done[p] & ~done[q]
-                    p, q = p[free], q[free]
-                    if p.size == 0:
-                        continue
-                    touched.append(_process_pairs(flat, p, q, excluded, done,
-                                                  chroma_threshold, noise_threshold))
-                    touched.append(p)
-            # (Repeated indices below are harmless: they get the same value.)
-            changed = np.concatenate(touched) if touched else np.empty(0, dtype=np.int64)
-            if changed.size:
-                ld[changed] = _log_ratio(flat, changed)
-                # Pairs whose Delta or exclusion may have changed: (c, c+1), (c-1, c), (c, c+w), (c-w, c).
-                aff = np.concatenate([changed, changed[col[changed] > 0] - 1, changed[row[changed] > 0] - w])
-                flag[aff] = flags(aff, eps, excluded)
-            previous, count = count, int(np.count_nonzero(flag))
-            if count >= previous:
-                break
-        remaining = count
+        sweeps, remaining, exhausted = _run_level(flat, grid, eps, dark.copy(), sweeps, max_sweeps,
+                                                  chroma_threshold, noise_threshold)
         if exhausted:
             break
     diffuse = finish_diffuse(flat.reshape(h, w, 3), img)
@@ -325,6 +254,121 @@ def separate_tan05(
         "converged": not exhausted,
     }
     return diffuse, info
+
+
+def _check_options(epsilon_start: float, epsilon_step: float, chroma_threshold: float, noise_threshold: float,
+                   dark_threshold: float, sf_max_chromaticity: float, max_sweeps: int) -> None:
+    _check_range("epsilon_start", epsilon_start, 0.0, np.inf)
+    _check_range("epsilon_step", epsilon_step, 0.0, np.inf, low_open=True)
+    _check_range("chroma_threshold", chroma_threshold, 0.0, 1.0)
+    _check_range("noise_threshold", noise_threshold, 0.0, 1.0)
+    _check_range("dark_threshold", dark_threshold, 0.0, 1.0)
+    _check_range("sf_max_chromaticity", sf_max_chromaticity, 1.0 / 3.0, 1.0, low_open=True)
+    if isinstance(max_sweeps, bool) or not isinstance(max_sweeps, (int, np.integer)) or max_sweeps < 1:
+        raise MethodError(f"method 'tan05': max_sweeps={max_sweeps!r}: expected a positive integer")
+
+
+def _levels(epsilon_start: float, epsilon_step: float) -> list[float]:
+    """Step 7's schedule: ``epsilon_start, epsilon_start - epsilon_step, ..., 0``."""
+    n_levels = int(np.floor(epsilon_start / epsilon_step + _LEVEL_ROUNDING)) + 1
+    levels = [max(epsilon_start - k * epsilon_step, 0.0) for k in range(n_levels)]
+    if levels[-1] > 0.0:
+        levels.append(0.0)
+    return levels
+
+
+class _Grid:
+    """The image's pixels in raster order, their log ratio and step 3's flags on neighbouring pairs."""
+
+    def __init__(self, flat: np.ndarray, h: int, w: int) -> None:
+        self.n, self.w = h * w, w
+        self.col = np.arange(self.n) % w
+        self.row = np.arange(self.n) // w
+        self.has_right = self.col < w - 1
+        self.has_below = self.row < h - 1
+        # log T - log T_sf up to a constant (Lambda_sf cancels; see module docstring).
+        self.ld = _log_ratio(flat)
+
+    def deltas(self, p: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Delta of the pairs (p, p + 1) and (p, p + w) (all pixels if None); NaN where no pair."""
+        ld, n, w = self.ld, self.n, self.w
+        if p is None:
+            dx = np.full(n, np.nan)
+            dy = np.full(n, np.nan)
+            dx[:-1] = np.abs(ld[1:] - ld[:-1])
+            dx[~self.has_right] = np.nan
+            dy[: n - w] = np.abs(ld[w:] - ld[: n - w])
+            return dx, dy
+        dx = np.full(p.shape, np.nan)
+        dy = np.full(p.shape, np.nan)
+        r = self.has_right[p]
+        dx[r] = np.abs(ld[p[r] + 1] - ld[p[r]])
+        b = self.has_below[p]
+        dy[b] = np.abs(ld[p[b] + w] - ld[p[b]])
+        return dx, dy
+
+    def flags(self, p: np.ndarray | None, eps: float, excluded: np.ndarray) -> np.ndarray:
+        """0 none, 1 specular pair to the right, 2 specular pair below (right first)."""
+        dx, dy = self.deltas(p)
+        live = ~excluded if p is None else ~excluded[p]
+        with np.errstate(invalid="ignore"):
+            fx = live & (dx > eps)
+            fy = live & ~fx & (dy > eps)
+        return np.where(fx, 1, np.where(fy, 2, 0)).astype(np.int8)
+
+    def update(self, flat: np.ndarray, changed: np.ndarray, flag: np.ndarray, eps: float,
+               excluded: np.ndarray) -> None:
+        """New log ratios of the ``changed`` pixels, and new flags of every pair they belong to."""
+        self.ld[changed] = _log_ratio(flat, changed)
+        # Pairs whose Delta or exclusion may have changed: (c, c+1), (c-1, c), (c, c+w), (c-w, c).
+        aff = np.concatenate([changed, changed[self.col[changed] > 0] - 1, changed[self.row[changed] > 0] - self.w])
+        flag[aff] = self.flags(aff, eps, excluded)
+
+
+def _run_level(flat: np.ndarray, grid: _Grid, eps: float, excluded: np.ndarray, sweeps: int, max_sweeps: int,
+               chroma_threshold: float, noise_threshold: float) -> tuple[int, int, bool]:
+    """Sweeps at one ``epsilon`` while the number of flagged pixels decreases (``flat`` updated in place).
+
+    Returns the total number of sweeps so far, the pixels still flagged, and whether
+    ``max_sweeps`` was reached.
+    """
+    flag = grid.flags(None, eps, excluded)
+    count = int(np.count_nonzero(flag))
+    while count:
+        if sweeps >= max_sweeps:
+            return sweeps, count, True
+        sweeps += 1
+        changed = _sweep(flat, grid, flag, excluded, chroma_threshold, noise_threshold)
+        if changed.size:
+            grid.update(flat, changed, flag, eps, excluded)
+        previous, count = count, int(np.count_nonzero(flag))
+        if count >= previous:
+            break
+    return sweeps, count, False
+
+
+def _sweep(flat: np.ndarray, grid: _Grid, flag: np.ndarray, excluded: np.ndarray, chroma_threshold: float,
+           noise_threshold: float) -> np.ndarray:
+    """One sweep of steps 4-6 over the flagged pairs, as a matching in four passes (module docstring).
+
+    Returns the indices of the pixels that changed or were processed (with repeats, which are harmless).
+    """
+    w = grid.w
+    done = np.zeros(grid.n, dtype=bool)
+    touched: list[np.ndarray] = []
+    for code, offset in ((1, 1), (2, w)):
+        pos = np.flatnonzero(flag == code)
+        parity = (pos % w if code == 1 else pos // w) % 2
+        for par in (0, 1):
+            p = pos[parity == par]
+            q = p + offset
+            free = ~done[p] & ~done[q]
+            p, q = p[free], q[free]
+            if p.size == 0:
+                continue
+            touched.append(_process_pairs(flat, p, q, excluded, done, chroma_threshold, noise_threshold))
+            touched.append(p)
+    return np.concatenate(touched) if touched else np.empty(0, dtype=np.int64)
 
 
 def _process_pairs(
@@ -365,7 +409,7 @@ def _process_pairs(
     # and noise_threshold is 0; guard that case.
     changed = []
     for sel, src, idx, target in ((lower_a, a, p, mb), (lower_b, b, q, ma)):
-        ok = sel & (3.0 * target - 1.0 > 1e-12)
+        ok = sel & (3.0 * target - 1.0 > _ACHROMATIC)
         if not ok.any():
             continue
         new = shift_max_chromaticity(src[ok], target[ok])

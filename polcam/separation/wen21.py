@@ -2,7 +2,7 @@
 
 After S. Wen, Y. Zheng and F. Lu, "Polarization guided specular reflection
 separation", IEEE Transactions on Image Processing 30, 2021 (:data:`REFERENCE`).
-docs/algorithm.md (wen21) gives the equations, every choice the paper leaves
+docs/methods/wen21.md gives the equations, every choice the paper leaves
 open, and the measurements behind the defaults.
 
 Outline (stack ``I`` of shape (4, H, W, 3), angles 0, 45, 90, 135 degrees):

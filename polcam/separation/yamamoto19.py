@@ -215,37 +215,18 @@ def separate_yamamoto19(
         Bad image, options or base method name.
     """
     image = as_rgb_image(image, method="yamamoto19")
-    if not isinstance(base, str):
-        raise MethodError(f"yamamoto19: base={base!r}: expected a method name")
-    if not (np.isfinite(k) and k >= 0):
-        raise MethodError(f"yamamoto19: k={k!r}: expected a non-negative gain")
-    if not (np.isfinite(omega) and 0 <= omega <= 1):
-        raise MethodError(f"yamamoto19: omega={omega!r}: expected a number in [0, 1]")
-    if not (np.isfinite(epsilon) and epsilon >= 0):
-        raise MethodError(f"yamamoto19: epsilon={epsilon!r}: expected a non-negative number")
-    if int(max_iter) != max_iter or max_iter < 1:
-        raise MethodError(f"yamamoto19: max_iter={max_iter!r}: expected an integer >= 1")
+    _check_options(base, k, omega, epsilon, max_iter)
     diffuse = _base_diffuse(image, base, dict(base_options or {}))
     specular = np.clip(image - diffuse, 0.0, 1.0)
     theta = high_emphasis(image, k)
-    h, w, _ = image.shape
     info: dict[str, Any] = {"base": base, "iterations": 0, "replaced": [], "window": 0, "converged": True}
-
     for _ in range(int(max_iter)):
-        u_d = high_emphasis(diffuse, k)
-        u_s = high_emphasis(specular, k)
-        u = np.clip(u_d + u_s, 0.0, 1.0)
-        wrong = np.all(u_d > theta, axis=-1)
-        luma = specular @ _LUMA
-        n_spec = 0
-        if float(luma.max()) > float(luma.min()):
-            n_spec = int(np.count_nonzero(luma > threshold_otsu(luma)))
-        if n_spec == 0 or not wrong.any():
+        wrong, consistency = _erroneous(diffuse, specular, theta, k)
+        n = _window_side(specular)
+        if n == 0 or not wrong.any():
             break
-        n = 2 * int(np.ceil(np.sqrt(n_spec) / 2.0)) + 1
         r = n // 2
         info["window"] = n
-        consistency = ((theta - u) ** 2).sum(axis=-1)
         src = _most_similar(image, consistency, wrong, r, omega)
         previous = diffuse
         diffuse = previous.copy()
@@ -259,3 +240,36 @@ def separate_yamamoto19(
     else:
         info["converged"] = False
     return finish_diffuse(diffuse, image), info
+
+
+def _check_options(base: str, k: float, omega: float, epsilon: float, max_iter: int) -> None:
+    if not isinstance(base, str):
+        raise MethodError(f"yamamoto19: base={base!r}: expected a method name")
+    if not (np.isfinite(k) and k >= 0):
+        raise MethodError(f"yamamoto19: k={k!r}: expected a non-negative gain")
+    if not (np.isfinite(omega) and 0 <= omega <= 1):
+        raise MethodError(f"yamamoto19: omega={omega!r}: expected a number in [0, 1]")
+    if not (np.isfinite(epsilon) and epsilon >= 0):
+        raise MethodError(f"yamamoto19: epsilon={epsilon!r}: expected a non-negative number")
+    if int(max_iter) != max_iter or max_iter < 1:
+        raise MethodError(f"yamamoto19: max_iter={max_iter!r}: expected an integer >= 1")
+
+
+def _erroneous(diffuse: np.ndarray, specular: np.ndarray, theta: np.ndarray, k: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels whose filtered diffuse exceeds the filtered image in every channel (H, W) bool, and the filter
+    consistency ``C = |H(I) - clip(H(D) + H(S))|^2`` (H, W)."""
+    u_d = high_emphasis(diffuse, k)
+    u_s = high_emphasis(specular, k)
+    u = np.clip(u_d + u_s, 0.0, 1.0)
+    wrong = np.all(u_d > theta, axis=-1)
+    return wrong, ((theta - u) ** 2).sum(axis=-1)
+
+
+def _window_side(specular: np.ndarray) -> int:
+    """Odd side of the search window, about the square root of the number of specular pixels (luma above
+    Otsu's threshold); 0 when there are none."""
+    luma = specular @ _LUMA
+    n_spec = 0
+    if float(luma.max()) > float(luma.min()):
+        n_spec = int(np.count_nonzero(luma > threshold_otsu(luma)))
+    return 0 if n_spec == 0 else 2 * int(np.ceil(np.sqrt(n_spec) / 2.0)) + 1

@@ -44,7 +44,7 @@ keeps the input where its denominator vanishes).
 The range sigma: the authors' code applies 10/255 to ``lambda_max`` rescaled
 from [1/3, 1] to [0, 1], i.e. ``sigma_range = 0.04 / 1.5`` here, with 10
 levels; those settings reproduce the paper's own PSNR figures on Shen &
-Zheng's images (docs/algorithm.md, yang10), the default reproduces the
+Zheng's images (docs/methods/yang10.md), the default reproduces the
 SIHR toolbox's.  Both are within 1 dB of either.
 
 Backends: the method is written over the array namespace of

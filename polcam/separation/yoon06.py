@@ -154,6 +154,31 @@ def separate_yoon06(
     np.divide(sf[:, 0], s, out=sf_r, where=usable)
     np.divide(sf[:, 1], s, out=sf_g, where=usable)
 
+    label, n_comp = _components(h, w, usable, sf_r, sf_g, chroma_threshold, direction)
+    ratio = np.full(n, np.inf)
+    np.divide(t, s, out=ratio, where=usable)
+    comp_min = np.full(n_comp, np.inf)
+    np.minimum.at(comp_min, label, ratio)
+    q_min = comp_min[label]
+    new_t = t.copy()
+    new_t[usable] = q_min[usable] * s[usable]
+    diffuse = flat - ((t - new_t) / 3.0)[:, None]
+    sizes = np.bincount(label, minlength=n_comp)
+    info = {
+        "components": int(np.count_nonzero(sizes > 1)),
+        "iterations": 0,
+        "converged": True,
+    }
+    return finish_diffuse(diffuse.reshape(h, w, 3), img), info
+
+
+def _components(h: int, w: int, usable: np.ndarray, sf_r: np.ndarray, sf_g: np.ndarray, chroma_threshold: float,
+                direction: str) -> tuple[np.ndarray, int]:
+    """Connected components of the graph linking neighbouring usable pixels of one specular-free chromaticity.
+
+    Returns each pixel's component label (n,) and the number of components.
+    """
+    n = h * w
     idx = np.arange(n).reshape(h, w)
     pairs = []
     if direction in ("vertical", "both"):
@@ -174,19 +199,4 @@ def separate_yoon06(
     c = np.concatenate(cols) if cols else np.empty(0, dtype=np.int64)
     graph = coo_matrix((np.ones(r.size, dtype=np.int8), (r, c)), shape=(n, n)).tocsr()
     n_comp, label = connected_components(graph, directed=False)
-
-    ratio = np.full(n, np.inf)
-    np.divide(t, s, out=ratio, where=usable)
-    comp_min = np.full(n_comp, np.inf)
-    np.minimum.at(comp_min, label, ratio)
-    q_min = comp_min[label]
-    new_t = t.copy()
-    new_t[usable] = q_min[usable] * s[usable]
-    diffuse = flat - ((t - new_t) / 3.0)[:, None]
-    sizes = np.bincount(label, minlength=n_comp)
-    info = {
-        "components": int(np.count_nonzero(sizes > 1)),
-        "iterations": 0,
-        "converged": True,
-    }
-    return finish_diffuse(diffuse.reshape(h, w, 3), img), info
+    return label, n_comp

@@ -71,6 +71,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from polcam.sinks.base import Record, SinkBase
 from polcam.sinks.rerun_web import LOOPBACK, WebServer, is_loopback
 
 __all__ = [
@@ -338,30 +339,7 @@ def blueprint(*, live: bool = True) -> Any:
     )
 
 
-def _raw_source(folder: Path, meta: dict[str, Any]) -> Path | None:
-    """The raw frame a process frame folder came from (``meta.json``'s ``input``), or None.
-
-    ``input`` is absolute; a relative one (relative to where ``process`` ran)
-    is looked for from the current folder, then from each folder above the
-    frame folder, and taken only when its SHA-256 is ``input_sha256``.
-    """
-    src = meta.get("input")
-    if not isinstance(src, str) or not src:
-        return None
-    given = Path(src)
-    if given.is_absolute():
-        return given if given.is_file() else None
-    from polcam._hashing import sha256_file
-
-    want = meta.get("input_sha256")
-    for base in (Path.cwd(), *folder.resolve().parents):
-        candidate = base / given
-        if candidate.is_file() and (want is None or sha256_file(candidate) == want):
-            return candidate
-    return None
-
-
-class RerunSink:
+class RerunSink(SinkBase):
     """Log polcam's data to Rerun: the one writer of every entity path.
 
     Parameters
@@ -529,58 +507,54 @@ class RerunSink:
             The raw :class:`polcam.frame.Frame`, logged at ``/camera/raw``
             (subject to ``raw_every``), or None.
         """
-        if frame is not None:
-            self.log_raw(index, timestamp_ns, frame.mosaic, bit_depth=frame.bit_depth)
-        if all(k in products for k in ("s0", "dolp", "aolp")):
-            self.log_polarization(index, timestamp_ns, s0=products["s0"], dolp=products["dolp"],
-                                  aolp=products["aolp"])
-        if "diffuse" in products and "specular" in products:
-            self.log_layers(index, timestamp_ns, diffuse=products["diffuse"], specular=products["specular"])
+        self.log(index, Record(frame=frame, products=products, timestamp_ns=timestamp_ns))
 
     def log_output(self, index: int, folder: str | Path) -> None:
-        """Log a frame folder written by ``polcam process`` (its files read back).
-
-        Reads ``s0``, ``dolp``, ``aolp``, ``diffuse``, ``specular`` (``.exr``
-        or ``.tif``) and ``meta.json``; the raw frame named there (``input``)
-        is logged too when it still exists (:func:`_raw_source`), and its
-        ``timestamp_ns`` as the device time.
+        """Log a frame folder written by ``polcam process``, its files read back
+        (:func:`polcam.sinks.files.read_frame_folder`: the products, and the raw
+        frame named in ``meta.json`` while it exists).
 
         Raises
         ------
         FrameReadError
             A product file that is missing or unreadable.
         """
-        import json
+        self.log(index, Record(folder=Path(folder)))
 
-        from polcam.errors import FrameReadError
-        from polcam.io import read_frame, read_image
+    def log(self, index: int, record: Record) -> None:
+        """Log what ``record`` carries (:class:`polcam.sinks.base.Sink`).
 
-        folder = Path(folder)
-        products: dict[str, np.ndarray] = {}
-        for name in ("s0", "dolp", "aolp", "diffuse", "specular"):
-            found = [folder / f"{name}{ext}" for ext in (".exr", ".tif", ".tiff") if (folder / f"{name}{ext}").is_file()]
-            if not found:
-                raise FrameReadError(f"no {name}.exr or {name}.tif: expected a polcam process frame folder", path=folder)
-            arr, _ = read_image(found[0])
-            if arr.ndim == 3 and arr.shape[2] == 1:
-                arr = arr[..., 0]
-            if arr.dtype == np.uint16:  # --format tiff16: [0, 1] scaled to 0..65535
-                arr = arr.astype(np.float32) / 65535.0
-            products[name] = np.ascontiguousarray(arr, dtype=np.float32)
-        meta: dict[str, Any] = {}
-        try:
-            meta = json.loads((folder / "meta.json").read_text())
-        except (OSError, ValueError):
-            pass
-        ts = (meta.get("frame") or {}).get("timestamp_ns")
-        frame = None
-        src = _raw_source(folder, meta)
-        if src is not None:
-            try:
-                frame = read_frame(src, layout=meta.get("layout"))
-            except (ValueError, OSError):
-                frame = None  # the view goes on without the raw panel
-        self.log_products(index, products, timestamp_ns=None if ts is None else int(ts), frame=frame)
+        ``record.frame`` goes to ``/camera/raw`` (subject to ``raw_every``);
+        ``s0``, ``dolp`` and ``aolp`` in ``record.products`` to
+        ``/polarization/*`` (:meth:`log_polarization`, with ``record.scale["s0"]``);
+        ``diffuse`` and ``specular`` to ``/layers/*`` (:meth:`log_layers`, with
+        ``record.scale["diffuse"]``); ``record.stats`` to ``/stats/*``.  A
+        record with only a ``folder`` is a finished ``polcam process`` frame
+        folder, read back and logged (:meth:`log_output`).
+
+        Raises
+        ------
+        FrameReadError
+            A frame folder whose product files are missing or unreadable.
+        ValueError
+            An unknown statistic.
+        """
+        if record.folder is not None and not record.products and record.frame is None:
+            from polcam.sinks.files import read_frame_folder
+
+            record = read_frame_folder(record.folder)
+        ts = record.timestamp_ns
+        products, scale = record.products, record.scale
+        if record.frame is not None:
+            self.log_raw(index, ts, record.frame.mosaic, bit_depth=record.frame.bit_depth)
+        if all(k in products for k in ("s0", "dolp", "aolp")):
+            self.log_polarization(index, ts, s0=products["s0"], dolp=products["dolp"], aolp=products["aolp"],
+                                  scale=scale.get("s0", 1.0))
+        if "diffuse" in products and "specular" in products:
+            self.log_layers(index, ts, diffuse=products["diffuse"], specular=products["specular"],
+                            scale=scale.get("diffuse", 1.0))
+        if record.stats:
+            self.log_stats(index, ts, **record.stats)
 
     def close(self) -> None:
         """Flush everything to the target; ``serve`` stops the web viewer."""

@@ -10,7 +10,7 @@ camera and shades them with Blinn-Phong.  This module holds the geometry half:
   builds a sphere (for tests and calibration scenes).
 * :meth:`Mesh.normalized` centres a mesh's bounding box on the origin and
   scales its largest extent to 1 (the *unit box* ``[-0.5, 0.5]^3``).
-* :func:`rasterize` projects the triangles through a :class:`Camera` and keeps,
+* :func:`rasterize` (:mod:`polcam.synth.raster`) projects the triangles through a :class:`Camera` and keeps,
   per pixel centre, the nearest surface: depth, surface normal, the 3-D point
   (world and object coordinates) and the object mask.
 
@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from polcam.errors import PolcamError
+from polcam.synth.raster import Raster, rasterize
 
 __all__ = [
     "MESH_NAMES",
@@ -69,8 +70,6 @@ __all__ = [
 #: Meshes shipped in ``fixtures/meshes/`` (the paper's three objects).
 MESH_NAMES: tuple[str, ...] = ("bunny", "dragon", "armadillo")
 
-# Largest number of (triangle, pixel) candidates handled in one vectorised batch.
-_BATCH = 1 << 21
 
 
 # --------------------------------------------------------------------------- meshes
@@ -391,199 +390,3 @@ class Camera:
         y = -(np.arange(height) + 0.5 - height / 2) / f
         d = np.stack(np.broadcast_arrays(x[None, :], y[:, None], -np.ones((1, 1))), axis=-1)
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
-
-@dataclass
-class Raster:
-    """What a pixel centre sees: the output of :func:`rasterize`.
-
-    Attributes
-    ----------
-    depth
-        (H, W) float32 depth along the optical axis (``distance - Z``);
-        ``inf`` where no surface is hit.
-    normal
-        (H, W, 3) float32 unit surface normals in world coordinates, facing
-        the camera side; 0 where nothing is hit.
-    position
-        (H, W, 3) float32 world coordinates of the visible point; 0 off the mesh.
-    object_position
-        (H, W, 3) float32 coordinates of the visible point in the mesh's own
-        frame (before ``object_transform``), for solid textures; 0 off the mesh.
-    mask
-        (H, W) bool, True where a triangle covers the pixel centre.
-    face
-        (H, W) int64 index of the visible triangle, -1 where none.
-    """
-
-    depth: np.ndarray
-    normal: np.ndarray
-    position: np.ndarray
-    object_position: np.ndarray
-    mask: np.ndarray
-    face: np.ndarray
-
-
-def _candidates(u: np.ndarray, v: np.ndarray, height: int, width: int):
-    """Bounding boxes of projected triangles in pixel-centre indices."""
-    c0 = np.clip(np.ceil(u.min(axis=1) - 0.5), 0, width).astype(np.int64)
-    c1 = np.clip(np.floor(u.max(axis=1) - 0.5), -1, width - 1).astype(np.int64)
-    r0 = np.clip(np.ceil(v.min(axis=1) - 0.5), 0, height).astype(np.int64)
-    r1 = np.clip(np.floor(v.max(axis=1) - 0.5), -1, height - 1).astype(np.int64)
-    nx = np.maximum(c1 - c0 + 1, 0)
-    ny = np.maximum(r1 - r0 + 1, 0)
-    return c0, r0, nx, ny
-
-
-def rasterize(
-    mesh: Mesh,
-    camera: Camera,
-    size: int | tuple[int, int],
-    *,
-    normals: str = "vertex",
-    object_transform: tuple[np.ndarray, np.ndarray] | None = None,
-) -> Raster:
-    """Rasterise a mesh with a z-buffer: one sample at each pixel centre.
-
-    Parameters
-    ----------
-    mesh
-        Triangles in world coordinates (in front of the camera: every vertex
-        at depth ``camera.distance - z > 0``).
-    camera
-        The pinhole camera.
-    size
-        ``N`` for an N x N image, or ``(H, W)``.
-    normals
-        ``"vertex"`` (interpolated vertex normals, smooth shading) or
-        ``"face"`` (flat face normals).
-    object_transform
-        ``(R, t)`` with ``R`` a rotation such that world = ``R @ object + t``;
-        ``object_position`` is mapped back through it (identity when ``None``).
-
-    Returns
-    -------
-    Raster
-
-    Raises
-    ------
-    PolcamError
-        A bad size or normals mode, or a vertex at or behind the camera plane.
-    """
-    if isinstance(size, (int, np.integer)):
-        height = width = int(size)
-    else:
-        try:
-            height, width = (int(s) for s in size)
-        except (TypeError, ValueError):
-            raise PolcamError(f"image size {size!r}: expected N or (H, W) positive integers") from None
-    if height < 1 or width < 1:
-        raise PolcamError(f"image size {(height, width)}: expected positive integers")
-    if normals not in ("vertex", "face"):
-        raise PolcamError(f"normals {normals!r}: expected 'vertex' or 'face'")
-
-    verts = mesh.vertices
-    u_v, v_v, w_v = camera.project(verts, height, width)
-    if np.any(w_v <= 1e-9):
-        raise PolcamError(
-            f"mesh {mesh.name!r} reaches depth {w_v.min():.3g}: every vertex must lie in front of the "
-            f"camera (z < camera distance {camera.distance})"
-        )
-    faces = mesh.faces
-    u, v, w = u_v[faces], v_v[faces], w_v[faces]  # (F, 3) each
-    area = (u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0]) - (u[:, 2] - u[:, 0]) * (v[:, 1] - v[:, 0])
-    c0, r0, nx, ny = _candidates(u, v, height, width)
-    count = nx * ny
-    keep = (count > 0) & (np.abs(area) > 1e-12)
-    tri_all = np.nonzero(keep)[0]
-
-    npix = height * width
-    best_depth = np.full(npix, np.inf)
-    best_face = np.full(npix, -1, dtype=np.int64)
-    best_b = np.zeros((npix, 3))
-
-    # batches of triangles whose candidate pixels total about _BATCH
-    csum = np.cumsum(count[tri_all])
-    starts = [0]
-    while starts[-1] < len(tri_all):
-        base = csum[starts[-1] - 1] if starts[-1] > 0 else 0
-        end = int(np.searchsorted(csum, base + _BATCH, side="right"))
-        starts.append(max(end, starts[-1] + 1))
-    for a, b in zip(starts[:-1], starts[1:]):
-        tri = tri_all[a:b]
-        cnt = count[tri]
-        tid = np.repeat(np.arange(len(tri)), cnt)
-        first = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-        k = np.arange(len(tid)) - first[tid]
-        t = tri[tid]
-        col = c0[t] + k % nx[t]
-        row = r0[t] + k // nx[t]
-        px, py = col + 0.5, row + 0.5
-        uu, vv, ar = u[t], v[t], area[t]
-        # edge functions, normalised by the signed area: barycentric weights in the image
-        b0 = ((uu[:, 1] - px) * (vv[:, 2] - py) - (uu[:, 2] - px) * (vv[:, 1] - py)) / ar
-        b1 = ((uu[:, 2] - px) * (vv[:, 0] - py) - (uu[:, 0] - px) * (vv[:, 2] - py)) / ar
-        b2 = 1.0 - b0 - b1
-        eps = -1e-9
-        inside = (b0 >= eps) & (b1 >= eps) & (b2 >= eps)
-        if not inside.any():
-            continue
-        b0, b1, b2 = b0[inside], b1[inside], b2[inside]
-        t, pix = t[inside], (row * width + col)[inside]
-        ww = w[t]
-        inv_w = b0 / ww[:, 0] + b1 / ww[:, 1] + b2 / ww[:, 2]  # 1/depth is affine in the image
-        depth = 1.0 / inv_w
-        # z-buffer: nearest candidate per pixel, merged with the batches before
-        order = np.lexsort((depth, pix))
-        pix_s = pix[order]
-        head = np.ones(len(order), dtype=bool)
-        head[1:] = pix_s[1:] != pix_s[:-1]
-        sel = order[head]
-        p_sel = pix[sel]
-        better = depth[sel] < best_depth[p_sel]
-        sel, p_sel = sel[better], p_sel[better]
-        best_depth[p_sel] = depth[sel]
-        best_face[p_sel] = t[sel]
-        best_b[p_sel] = np.stack([b0[sel], b1[sel], b2[sel]], axis=1)
-
-    hit = best_face >= 0
-    depth_img = np.where(hit, best_depth, np.inf).reshape(height, width).astype(np.float32)
-    normal = np.zeros((npix, 3))
-    pos = np.zeros((npix, 3))
-    opos = np.zeros((npix, 3))
-    if hit.any():
-        fidx = best_face[hit]
-        bsc = best_b[hit]
-        wf = w[fidx]
-        # perspective-correct weights for attributes: (b_i / w_i) / sum_j (b_j / w_j)
-        bp = bsc / wf
-        bp /= bp.sum(axis=1, keepdims=True)
-        tri_v = verts[faces[fidx]]  # (N, 3, 3)
-        pos_hit = np.einsum("nk,nkd->nd", bp, tri_v)
-        fn = mesh.face_normals()[fidx]
-        if normals == "vertex":
-            vn = mesh.vertex_normals()[faces[fidx]]
-            n = np.einsum("nk,nkd->nd", bp, vn)
-            ln = np.linalg.norm(n, axis=1, keepdims=True)
-            n = np.where(ln > 1e-12, n / np.where(ln > 1e-12, ln, 1), fn)
-        else:
-            n = fn
-        # two-sided: flip where the visible face looks away from the camera
-        view = camera.center - pos_hit
-        back = np.einsum("nd,nd->n", fn, view) < 0
-        n[back] = -n[back]
-        normal[hit] = n
-        pos[hit] = pos_hit
-        if object_transform is None:
-            opos[hit] = pos_hit
-        else:
-            r, tr = object_transform
-            opos[hit] = (pos_hit - np.asarray(tr, dtype=np.float64)) @ np.asarray(r, dtype=np.float64)
-    return Raster(
-        depth=depth_img,
-        normal=normal.reshape(height, width, 3).astype(np.float32),
-        position=pos.reshape(height, width, 3).astype(np.float32),
-        object_position=opos.reshape(height, width, 3).astype(np.float32),
-        mask=hit.reshape(height, width),
-        face=best_face.reshape(height, width),
-    )

@@ -120,7 +120,7 @@ def stack_from_stokes(s0: np.ndarray, dolp: np.ndarray, aolp: np.ndarray) -> np.
     Returns
     -------
     numpy.ndarray
-        (4, *s0.shape) float32, ``I(t) = s0 / 2 (1 + dolp cos(2 t - 2 aolp))`` for
+        ``(4, *s0.shape)`` float32, ``I(t) = s0 / 2 (1 + dolp cos(2 t - 2 aolp))`` for
         t = 0, 45, 90, 135 degrees; in [0, max(s0)].
 
     Raises

@@ -84,7 +84,7 @@ def test_select_runs_every_variant() -> None:
 
 
 def test_select_shared_runs_every_variant_and_matches_the_shipped_method() -> None:
-    """One row per baseline, the third round's ratio stage and every (common, offset, residual);
+    """One row per baseline, the per-colour ratio stage (tent) and every (common, offset, residual);
     the row with the shipped Gaussians scores exactly what the shipped ``lmmse`` scores."""
     from polcam.demosaicing.lmmse import LMMSE_PARAMS
 

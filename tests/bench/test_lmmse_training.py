@@ -129,6 +129,6 @@ def test_shipped_weights_say_how_they_were_made() -> None:
     with np.load(WEIGHTS_FILE) as data:
         info = json.loads(str(data["info"]))
     assert info["scenes"] >= 100 and "polcam.demosaicing.training" in info["command"]  # the module that made them
-    # the settings the validation set chose (docs/demosaic.md)
+    # the settings the validation set chose (docs/methods/demosaic-lmmse.md)
     assert info["moments"] == 2 and info["patterns"] == 50 and info["ridge"] == 0.003 and info["seed"] == 2024
     assert info["photos"] == 80 and "CC0" in info["data"]

@@ -1,4 +1,4 @@
-"""The camera protocol: frame-id gap counting, the frame queue, backend dispatch."""
+"""The camera protocol: frame-id gap counting, the frame queue, backend dispatch, the settings."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import pytest
 from polcam.camera.base import (
     Camera,
     CameraNotFoundError,
+    CameraSettings,
     CapturedFrame,
     FrameIdTracker,
 )
@@ -52,8 +53,8 @@ class _Source(Camera):
     def close(self):
         self._opened = False
 
-    def configure(self, **settings):
-        return {}
+    def _configure(self, settings):
+        return settings.given()
 
     def _start(self):
         pass
@@ -159,3 +160,42 @@ def test_poll_frames_idle_timeout_names_the_camera():
         with pytest.raises(FrameTimeout, match="camera cam-7: no frame for 0.05 s"):
             for _ in cam.poll_frames(poll=0.02, idle_timeout=0.05):
                 pass
+
+
+def test_configure_takes_a_settings_value_or_keywords_and_refuses_unknown_names():
+    cam = _Source("test")
+    base = CameraSettings(exposure_us=100.0, roi=(0, 0, 8, 8))
+    # the backend's _configure gets one CameraSettings (here: echoed back as its set fields)
+    assert cam.configure(base) == {"exposure_us": 100.0, "roi": (0, 0, 8, 8)}
+    assert cam.configure(base, exposure_us=5.0, trigger="free") == {"exposure_us": 5.0, "roi": (0, 0, 8, 8),
+                                                                    "trigger": "free"}
+    assert base.exposure_us == 100.0  # the value given is not changed
+    assert cam.configure(gain_db=2.0) == {"gain_db": 2.0}
+    assert cam.configure() == {}
+    with pytest.raises(TypeError, match=r"unknown camera settings \['exposure'\].*exposure_us"):
+        cam.configure(exposure=5.0)
+
+
+def test_settings_and_keywords_configure_a_real_backend_alike(tmp_path):
+    from polcam.camera.replay import ReplayCamera
+    from polcam.frame import Frame
+    from polcam.io import write_frame
+    from polcam.mosaic import parse_layout
+
+    mosaic = np.arange(16 * 24, dtype=np.uint16).reshape(16, 24)
+    write_frame(tmp_path / "f.npy", Frame(mosaic=mosaic, layout=parse_layout("imx250myr"), bit_depth=12))
+    results = []
+    for how in ("settings", "keywords"):
+        with ReplayCamera(tmp_path) as cam:
+            roi, trigger = (6, 4, 13, 9), "software"
+            s = (cam.configure(CameraSettings(roi=roi, trigger=trigger, exposure_us=10.0)) if how == "settings"
+                 else cam.configure(roi=roi, trigger=trigger, exposure_us=10.0))
+            cam.start()
+            cam.trigger()
+            frame = cam.read(timeout=2.0)
+            cam.stop()
+        results.append((s, frame.mosaic))
+    (s1, m1), (s2, m2) = results
+    assert s1 == s2 and s1["roi"] == [4, 4, 12, 8] and s1["ignored"] == ["exposure_us"]
+    np.testing.assert_array_equal(m1, mosaic[4:12, 4:16])
+    np.testing.assert_array_equal(m2, m1)

@@ -126,7 +126,7 @@ def test_shared_detail_is_resolved_better_than_by_each_colour_alone() -> None:
     """AoLP varying across the image with a period of 12 pixels, shared by the colours (DoLP
     different in each): each colour's own lattice (one sample in 4 x 4 pixels) aliases it, the
     samples of all colours (one in 2 x 2) do not.  With the true S0 as guide, the shared-ratio
-    stage's mean AoLP error is well below the per-colour ratio stage's (third round's tent
+    stage's mean AoLP error is well below the per-colour ratio stage's (tent
     kernel): measured 0.105 against 0.202 rad (about 0.52 of it at periods of 8 to 12 pixels)."""
     rng = np.random.default_rng(3)
     h, w = 64, 72

@@ -57,8 +57,7 @@ def test_blend_limits_are_eari_and_lmmse(lay: Layout, monkeypatch: pytest.Monkey
 def test_blend_recovers_what_lmmse_loses_on_pattern_scenes() -> None:
     """On the pattern scenes (seed 1, 128 pixels; lmmse loses most to eari on smooth and
     sweep), the blend's mean S0 and DoLP PSNR are each at least 0.3 dB above lmmse's (measured
-    with the fourth round's lmmse and tau 0.02: +0.57 / +0.42 dB; with the third round's lmmse
-    and tau 0.1 the gain was +1.5 dB both: the new lmmse loses less there)."""
+    with the shipped lmmse and tau 0.02: +0.57 / +0.42 dB)."""
     psnr: dict[str, list[tuple[float, float]]] = {}
     for name in SCENES:
         truth = make_scene(name, height=128, width=128, seed=1, color=True).stack

@@ -22,7 +22,7 @@ instead of OpenCV's approximation, which was up to 1e-4 rad off; DoLP 0 where S0
 OpenCV's 0/0 had given 1).  The ``sep/tensor*`` arrays were rewritten when the tensor method's
 Imin bound became an option, off by default (the old arrays are those of ``imin_bound=True``,
 checked equal), and the ``sep/polarized-residual/*`` arrays when that method was rebuilt
-(docs/algorithm.md).  Entries are rewritten one family at a time: every other entry must still
+(docs/methods/polarized-residual.md).  Entries are rewritten one family at a time: every other entry must still
 match the file.
 
 Outputs: ``sep/<method>/<form>/{diffuse,specular}`` for every separation

@@ -60,8 +60,8 @@ def test_clipped_region_fill_grows_with_its_polarized_border():
     # a clipped disk (white level) on a 0.5 grey surround; the share of its 2-pixel border marked as
     # coherent polarized specular light sweeps from 0 to 1. With none the region is an overexposed
     # surface, left as measured; with all of it a clipped highlight, filled from the surround. In
-    # between the fill grows in steps as small as the share's: before the tenth round it switched
-    # at a share of 0.3, and a clipped ear's diffuse jumped by 0.5 between two noise draws
+    # between the fill grows in steps as small as the share's (a hard switch at a share of 0.3 made a
+    # clipped ear's diffuse jump by 0.5 between two noise draws)
     h, w = 40, 40
     yy, xx = np.mgrid[:h, :w]
     disk = (yy - 20) ** 2 + (xx - 20) ** 2 <= 36

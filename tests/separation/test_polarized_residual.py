@@ -152,7 +152,7 @@ def test_diffuse_bounds_and_one_specular_colour():
 
 
 def test_noise_estimate_matches_the_planted_deviation():
-    from polcam.separation._polarization_noise import _stokes_noise
+    from polcam.separation._polarization_noise import stokes_noise
 
     rng = np.random.default_rng(5)
     d = _scene(96, 128)
@@ -160,15 +160,15 @@ def test_noise_estimate_matches_the_planted_deviation():
     st = _stack(d, spec, (1, 1, 1), rho_s=0.6, phi_s=0.4)
     sigma_i = 0.01
     noisy = st + rng.normal(0.0, sigma_i, st.shape)
-    sig = _stokes_noise(noisy.astype(np.float32), noisy.mean(0).astype(np.float32))
+    sig = stokes_noise(noisy.astype(np.float32), noisy.mean(0).astype(np.float32))
     # q = (I0 - I90) / 2 has deviation sigma_I / sqrt 2
     np.testing.assert_allclose(np.median(sig), sigma_i / np.sqrt(2), rtol=0.1)
     # a noise-free stack, highlights and all: no noise
-    assert np.max(_stokes_noise(st.astype(np.float32), st.mean(0).astype(np.float32))) < 1e-6
+    assert np.max(stokes_noise(st.astype(np.float32), st.mean(0).astype(np.float32))) < 1e-6
     # a stack whose four images have unequal gains breaks I0 + I90 = I45 + I135 everywhere, but the
     # spatial high-pass of q and u sees no noise: the estimate stays near zero
     gains = np.array([1.03, 1.0, 0.98, 1.0])[:, None, None, None]
-    assert np.median(_stokes_noise((st * gains).astype(np.float32), st.mean(0).astype(np.float32))) < 2e-3
+    assert np.median(stokes_noise((st * gains).astype(np.float32), st.mean(0).astype(np.float32))) < 2e-3
 
 
 def test_noise_is_not_removed_as_polarized_light():
@@ -224,7 +224,8 @@ def test_overexposed_white_surface_under_a_tinted_light_stays_diffuse():
     # WhiteGrey's white and grey checker under a green-heavy light (0.55, 1, 0.7), bright enough that
     # the green channel of the white squares is clipped at all four angles away from any highlight:
     # their colour is not measured, so the colour prior must not take them for a paler shade of a
-    # coloured material. Before the tenth round it removed up to 38 % of such a pixel's light
+    # coloured material (a prior blind to clipping removed up to 38 % of such a pixel's light;
+    # docs/methods/polarized-residual.md)
     import dataclasses
 
     from polcam.synth.render import render
@@ -379,8 +380,8 @@ def test_no_diffuse_polarization_beyond_the_physical_bound_near_brewster(monkeyp
 def test_weakly_polarized_diffuse_beside_a_highlight_is_kept():
     # an orange surface with a partly polarized white highlight on one side and, apart from it, a band
     # whose diffuse light is weakly polarized (DoLP 0.03, perpendicular to the specular's): the band's
-    # polarized light has the surface's colour, so it stays in the diffuse (sixth round: before, only
-    # a misfit of 3 % of the intensity was accepted, and the band lost its polarized light)
+    # polarized light has the surface's colour, so it stays in the diffuse (a
+    # misfit bound of 3 % of the intensity would lose the band's polarized light)
     h, w = 48, 64
     d = np.broadcast_to(np.array([0.5, 0.25, 0.15]), (h, w, 3)).copy()
     spec = 0.3 * _bump(h, w, 24, 16, 4)
@@ -423,8 +424,8 @@ def test_polarization_off_the_body_colour_is_not_kept(channel):
 def test_residual_ratio_on_a_wide_highlight_needs_a_context_beyond_it(rho):
     # a uniform orange surface (smooth shading) with one wide white highlight of specular DoLP rho:
     # the unpolarized / polarized ratio k = (1 - rho) / rho is measured against the body colour, which
-    # only a neighbourhood wider than the highlight sees (sixth round: the default context went 0.08 ->
-    # 0.12 of the image side; at 0.08 a highlight of Gaussian radius 12 px on 128 px gave k half the truth)
+    # only a neighbourhood wider than the highlight sees (the default context is 0.12 of the image side;
+    # at 0.08 a highlight of Gaussian radius 12 px on 128 px gives k half the truth)
     h = w = 128
     d = np.array([0.5, 0.3, 0.2]) * (0.6 + 0.4 * _bump(h, w, 64, 64, 60))[..., None]
     spec = 0.35 * _bump(h, w, 64, 64, 12)
@@ -596,9 +597,9 @@ def test_bad_device_is_refused():
 
 def test_a_tiny_change_of_the_input_gives_a_tiny_change_of_the_layer():
     # every unclipped sample of a rendered scene scaled by 1 + N(0, 3e-7), far below any camera's
-    # noise: the diffuse layer moves by less than 0.01 anywhere. Before the ninth round, unlit pixels
-    # (their residual ~1e-11, their hue that of rounding noise) lent their neighbours' saturation to
-    # a random hue, and Armadillo's layer moved by up to 0.28 at 64 px
+    # noise: the diffuse layer moves by less than 0.01 anywhere. Unlit pixels (their residual ~1e-11,
+    # their hue that of rounding noise) must not lend their neighbours' saturation to a random hue:
+    # when they did, Armadillo's layer moved by up to 0.28 at 64 px
     from polcam.separation.polarized_residual import separate_polarized_residual
     from polcam.synth.render import render
     from polcam.synth.scenes import scene
@@ -615,7 +616,7 @@ def test_a_tiny_change_of_the_input_gives_a_tiny_change_of_the_layer():
 
 def test_torch_path_copies_to_the_host_only_where_documented(torch_cases, monkeypatch):
     # on a GPU an implicit numpy conversion of a tensor fails, and a hidden copy costs time: make
-    # every implicit one raise, and record who asks for the explicit ones (docs/algorithm.md,
+    # every implicit one raise, and record who asks for the explicit ones (docs/methods/polarized-residual.md,
     # "Backends": the noise estimate's bins, the white test's block sums, the highlights' colour
     # sum, and the clipped fill)
     import inspect

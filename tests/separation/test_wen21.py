@@ -10,7 +10,7 @@ A polarizer at angle t sees ``I(t) = D + S/2 (1 + rho cos(2t - 2 phi))``; the
 mean over the four angles is ``D + S/2``, so the true diffuse layer on
 polcam's scale (one polarization image) is ``D`` and the true specular ``S/2``.
 
-Run this file as a script to print the PSNR table of docs/algorithm.md (wen21):
+Run this file as a script to print the PSNR table of docs/methods/wen21.md:
 ``.venv/bin/python tests/separation/test_wen21.py``.
 """
 
@@ -401,7 +401,7 @@ def test_converges_on_a_256_scene():
     assert res.info["converged"]
 
 
-# Scenes that played no part in choosing the defaults (docs/algorithm.md (wen21)).
+# Scenes that played no part in choosing the defaults (docs/methods/wen21.md).
 HELD_OUT = {
     "held-out 1: other albedos and light, gain 0.9, noise 0.004": dict(
         albedos=((0.9, 0.5, 0.4), (0.4, 0.4, 0.8), (0.5, 0.8, 0.8), (0.3, 0.3, 0.25)),
@@ -417,7 +417,7 @@ HELD_OUT = {
 
 
 def _print_tables() -> None:
-    """The PSNR tables of docs/algorithm.md (wen21)."""
+    """The PSNR tables of docs/methods/wen21.md."""
     tuned = dict(SCENES)
     tuned["grey albedos, noise 0.003"] = dict(albedos=GREYS, background=(0.4, 0.4, 0.4),
                                               noise=0.003)

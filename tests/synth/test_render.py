@@ -2,7 +2,7 @@
 
 The references are independent of the renderer: Fresnel degrees of polarization
 in the closed forms of Atkinson & Hancock (IEEE TIP 2006), the geometry of the
-plane of incidence seen by a pinhole camera, and the sensors' documented cells (docs/cameras.md).
+plane of incidence seen by a pinhole camera, and the sensors' documented cells (docs/guide/cameras.md).
 """
 
 from __future__ import annotations

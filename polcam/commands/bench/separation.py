@@ -207,7 +207,7 @@ def _add_stability(bsub: Any) -> None:
                         description="Per synthetic scene and method: the largest change of the diffuse layer "
                                     "under a perturbation of the input far below any noise (continuity), and "
                                     "the per-pixel deviation of the layer over noise seeds of a static scene "
-                                    "(flicker), with the mean PSNR (docs/algorithm.md, polarized-residual).")
+                                    "(flicker), with the mean PSNR (docs/methods/polarized-residual.md).")
     p.add_argument("--set", default="all", choices=("paper", "stress", "all"), help="scene set (default all)")
     p.add_argument("--scenes", nargs="+", help="only these scenes")
     p.add_argument("--methods", nargs="+", default=["polarized-residual", "imin"],

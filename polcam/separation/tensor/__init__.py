@@ -14,7 +14,7 @@ Three registered variants:
 ``tensor-plain``
     Without the phase term and without tau (eq. 11, tau = 1).
 
-The package, in data-flow order (docs/algorithm.md, section 4):
+The package, in data-flow order (docs/methods/tensor.md):
 
 :mod:`.options`
     Defaults, option checks and the tile plan.

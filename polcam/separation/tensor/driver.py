@@ -1,6 +1,6 @@
 """The tensor method's driver: one pipeline for the numpy and PyTorch backends.
 
-Steps (docs/algorithm.md, section 4, states each as implemented):
+Steps (docs/methods/tensor.md states each as implemented):
 
 1. the illuminant chromaticity Gamma (:func:`.operators.illuminant`) and the
    normalisation ``I / (3 Gamma)`` to a white illuminant, scaled into [0, 1];
@@ -154,7 +154,7 @@ def _separate(stack: np.ndarray, plan: Plan) -> tuple[np.ndarray, dict[str, Any]
     if plan.shared:
         # Yang'10 filters with a spatial sigma of a quarter of the image, so moving pixels within a
         # 3 x 3 block among pixels of the same chromaticity before or after it changes its output
-        # little (docs/algorithm.md, Fast solver)
+        # little (docs/methods/tensor.md, Fast solver)
         sync()
         timings["representations"] = time.perf_counter() - t
         t = time.perf_counter()

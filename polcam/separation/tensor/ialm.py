@@ -53,13 +53,12 @@ def ialm(D: Any, *, tau: Any, lam: float | np.ndarray, gamma: float,
     * ``Q = project(L)`` (skipped when ``gamma == 0``);
     * ``Y = Y + mu_t (D - L - S)``;
 
-    stopping when ``||D - L - S||_F / ||D||_F < tol``.  Computed in the scaled
-    form (Boyd et al. 2011, section 3.1.1): with ``P = Y / mu`` and
-    ``gamma_t = gamma mu_t`` the target is ``c1 E + c2 Q`` with
-    ``E = D - S + P`` and constants ``c1 = 1 / (1 + 2 gamma)``,
-    ``c2 = 2 gamma / (1 + 2 gamma)``; ``S = V - C`` and ``P_new = C mu / mu_new``
-    with ``V = D - L + P``, ``C = clip(V, +-lam tau / mu)``; the residual is
-    ``C - P`` and the next ``E = L + (C - P) + P_new`` (docs/algorithm.md).
+    stopping when ``||D - L - S||_F / ||D||_F < tol``.  Computed in the scaled form (Boyd et al.
+    2011, section 3.1.1): with ``P = Y / mu`` and ``gamma_t = gamma mu_t`` the target is
+    ``c1 E + c2 Q`` with ``E = D - S + P`` and constants ``c1 = 1 / (1 + 2 gamma)``,
+    ``c2 = 2 gamma / (1 + 2 gamma)``; ``S = V - C`` and ``P_new = C mu / mu_new`` with
+    ``V = D - L + P``, ``C = clip(V, +-lam tau / mu)``; the residual is ``C - P`` and the next
+    ``E = L + (C - P) + P_new`` (docs/methods/tensor.md).
 
     Each problem of a batch has its own mu0, threshold, residual and stopping
     iteration; a problem that stops leaves the batch.
@@ -106,29 +105,34 @@ def ialm(D: Any, *, tau: Any, lam: float | np.ndarray, gamma: float,
     """
     if gamma > 0 and project is None:
         raise ValueError("gamma > 0 needs a phase projection")
+    xp, single = namespace(D), D.ndim == 3
+    Dn, tau_n = _working_copy(D, tau, single=single, dtype=dtype, solver=solver)
+    norm_d = np.sqrt(xp.sqnorms(Dn))
+    out_l, out_s = xp.zeros(Dn.shape, like=Dn), xp.zeros(Dn.shape, like=Dn)
+    records = [_empty_record() for _ in range(Dn.shape[0])]
+    ids = [i for i in range(Dn.shape[0]) if norm_d[i] > 0]
+    if ids:
+        _loop(Dn, tau_n, ids, records, out_l, out_s, xp=xp, bk=backend_for(D), lam=lam, gamma=gamma,
+              project=project, chunked_project=chunked_project, rho=rho, mu0=mu0, mu_max=mu_max, tol=tol,
+              max_iter=max_iter, solver=solver, threads=threads, svt_options=svt_options or {}, norm_d=norm_d)
+    return (out_l[0], out_s[0], records[0]) if single else (out_l, out_s, records)
+
+
+def _working_copy(D: Any, tau: Any, *, single: bool, dtype: Any, solver: str) -> tuple[Any, Any]:
+    """D as a batch (B, n4, k, m) copied in the working precision (None: float64 for the exact solver,
+    float32 for the fast one), and tau in it."""
     xp = namespace(D)
-    bk = backend_for(D)
-    single = D.ndim == 3
     name = np.dtype(dtype).name if dtype is not None else ("float64" if solver == "exact" else "float32")
     dt = xp.dtype_of(name)
     Dn = xp.copy(xp.astype(D[None] if single else D, dt))
-    B, n4, k, m = Dn.shape
     tau_n = None if tau is None else xp.astype(tau[None] if single and tau.ndim == 3 else tau, dt)
+    return Dn, tau_n
 
-    norm_d = np.sqrt(xp.sqnorms(Dn))
-    out_l = xp.zeros(Dn.shape, like=Dn)
-    out_s = xp.zeros(Dn.shape, like=Dn)
-    records: list[dict[str, Any]] = [
-        {"iterations": 0, "converged": True, "residual": 0.0, "residuals": [], "ranks": [], "mu0": 0.0,
-         "svt_counts": {}} for _ in range(B)]
-    ids = [i for i in range(B) if norm_d[i] > 0]
-    if ids:
-        _loop(Dn, tau_n, ids, records, out_l, out_s, xp=xp, bk=bk, lam=lam, gamma=gamma, project=project,
-              chunked_project=chunked_project, rho=rho, mu0=mu0, mu_max=mu_max, tol=tol, max_iter=max_iter,
-              solver=solver, threads=threads, svt_options=svt_options or {}, norm_d=norm_d)
-    if single:
-        return out_l[0], out_s[0], records[0]
-    return out_l, out_s, records
+
+def _empty_record() -> dict[str, Any]:
+    """A problem's record before its first iteration (what a zero problem keeps)."""
+    return {"iterations": 0, "converged": True, "residual": 0.0, "residuals": [], "ranks": [], "mu0": 0.0,
+            "svt_counts": {}}
 
 
 def _loop(D_all: Any, tau: Any, ids: list[int], records: list[dict[str, Any]], out_l: Any, out_s: Any, *,
@@ -139,31 +143,17 @@ def _loop(D_all: Any, tau: Any, ids: list[int], records: list[dict[str, Any]], o
     B_all = D_all.shape[0]
     sel = ids if len(ids) < B_all else None
     D = D_all if sel is None else D_all[xp.index_array(sel, like=D_all)]
-    B, n4, k, m = D.shape
+    B, n4 = D.shape[:2]
     nd = norm_d[ids]
-    if mu0 is None:
-        spec = bk.spectral_norms(D)
-        mu = np.where(spec > 0, 1.25 / np.where(spec > 0, spec, 1.0), 1.0)
-    else:
-        mu = np.full(B, float(mu0))
+    mu = _initial_mu(bk, D, mu0)
     for j, i in enumerate(ids):
         records[i]["mu0"] = float(mu[j])
     mu_cap = mu * mu_max
-    lam_b = np.broadcast_to(np.asarray(lam, dtype=np.float64), (B_all,))[ids]
-    if tau is None:
-        W = xp.zeros((1, 1, k, m), like=D) + 1.0
-    else:
-        W = tau if sel is None or tau.shape[0] == 1 else tau[xp.index_array(sel, like=D)]
-    W = W * xp.column(lam_b, like=D)
-    W, Wn = xp.broadcast_to(W, D.shape), xp.broadcast_to(-W, D.shape)
+    W, Wn = _thresholds(D, tau, lam, ids, sel, B_all)
     c1, c2 = 1.0 / (1.0 + 2.0 * gamma), 2.0 * gamma / (1.0 + 2.0 * gamma)
     svt = bk.make_tsvt(solver, n4=n4, batch=B, dtype=D.dtype, threads=threads, options=svt_options)
-    L = xp.zeros(D.shape, like=D)
-    P = xp.zeros(D.shape, like=D)
+    L, P, T, V, R = (xp.zeros(D.shape, like=D) for _ in range(5))
     E = xp.copy(D)
-    T = xp.zeros(D.shape, like=D)
-    V = xp.zeros(D.shape, like=D)
-    R = xp.zeros(D.shape, like=D)
     Q = project(D) if gamma > 0 else None
     live = list(ids)
     with bk.chunks(n4, threads) as each:
@@ -191,16 +181,7 @@ def _loop(D_all: Any, tau: Any, ids: list[int], records: list[dict[str, Any]], o
                 return xp.sqnorms(r_)
 
             res = np.sqrt(sum(each(update))) / nd
-            done = []
-            for j, i in enumerate(live):
-                rec = records[i]
-                rec["iterations"] = it
-                rec["residuals"].append(float(res[j]))
-                rec["ranks"].append([int(r) for r in ranks[j]])
-                if res[j] < tol or it == max_iter:
-                    rec["converged"] = bool(res[j] < tol)
-                    rec["residual"] = float(res[j])
-                    done.append(j)
+            done = _record(records, live, it, res, ranks, tol=tol, max_iter=max_iter)
             if done:
                 jd = xp.index_array(done, like=D)
                 dst = xp.index_array([live[j] for j in done], like=D)
@@ -233,6 +214,43 @@ def _loop(D_all: Any, tau: Any, ids: list[int], records: list[dict[str, Any]], o
             if gamma > 0 and not chunked_project:
                 Q = project(L)
             mu = mu_next
+
+
+def _initial_mu(bk: Any, D: Any, mu0: float | None) -> np.ndarray:
+    """mu0 per problem (B,): given, or ``1.25 / ||bcirc(D)||_2`` (Lin, Chen & Ma's choice; 1 for a zero norm)."""
+    if mu0 is None:
+        spec = bk.spectral_norms(D)
+        return np.where(spec > 0, 1.25 / np.where(spec > 0, spec, 1.0), 1.0)
+    return np.full(D.shape[0], float(mu0))
+
+
+def _thresholds(D: Any, tau: Any, lam: Any, ids: list[int], sel: list[int] | None, B_all: int) -> tuple[Any, Any]:
+    """``lam tau`` of the problems ``ids``, and its negative, broadcast to D's shape (the S update's clip)."""
+    xp = namespace(D)
+    k, m = D.shape[2:]
+    lam_b = np.broadcast_to(np.asarray(lam, dtype=np.float64), (B_all,))[ids]
+    if tau is None:
+        W = xp.zeros((1, 1, k, m), like=D) + 1.0
+    else:
+        W = tau if sel is None or tau.shape[0] == 1 else tau[xp.index_array(sel, like=D)]
+    W = W * xp.column(lam_b, like=D)
+    return xp.broadcast_to(W, D.shape), xp.broadcast_to(-W, D.shape)
+
+
+def _record(records: list[dict[str, Any]], live: list[int], it: int, res: np.ndarray, ranks: Any, *,
+            tol: float, max_iter: int) -> list[int]:
+    """Append iteration ``it``'s residual and ranks to the live problems' records; the positions that stop."""
+    done = []
+    for j, i in enumerate(live):
+        rec = records[i]
+        rec["iterations"] = it
+        rec["residuals"].append(float(res[j]))
+        rec["ranks"].append([int(r) for r in ranks[j]])
+        if res[j] < tol or it == max_iter:
+            rec["converged"] = bool(res[j] < tol)
+            rec["residual"] = float(res[j])
+            done.append(j)
+    return done
 
 
 def solve_tiles(d0: Any, tau: Any, *, n1: int, n2: int, lam: float, gamma: float, opt: dict[str, Any],

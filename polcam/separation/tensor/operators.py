@@ -5,7 +5,7 @@ tensor low-rank and sparse decomposition using polarimetric cues", section 3:
 the illuminant pre-normalisation, the polarization chromaticity (eq. 3), the
 representations (similar pixels of a block), the unfolding of the
 representation images into the data tensor D, the weights tau, and the phase
-projection Phi^-1(Phi(.)) of the phase term.  docs/algorithm.md states each as
+projection Phi^-1(Phi(.)) of the phase term.  docs/methods/tensor.md states each as
 implemented and every departure from the paper.
 
 Every function takes numpy arrays or ``torch.Tensor`` (on any device) and

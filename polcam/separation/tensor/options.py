@@ -36,7 +36,7 @@ __all__ = [
     "default_lam",
 ]
 
-#: Defaults of the tensor methods, with where each comes from (docs/algorithm.md).
+#: Defaults of the tensor methods, with where each comes from (docs/methods/tensor.md).
 DEFAULTS: dict[str, Any] = {
     "n4": 4,            # representations per pixel (open in the paper; third-party 4)
     "block": 3,         # block side for candidate pixels (open; third-party 3x3)
@@ -54,12 +54,12 @@ DEFAULTS: dict[str, Any] = {
     "max_iter": 200,
     "init": "yang10",   # initial diffuse of every representation (paper: Yang'10)
     "illuminant": "polarization",  # "polarization", "white" or an RGB triple
-    "solver": "fast",   # "fast" or "exact" (the reference; docs/algorithm.md, Fast solver)
+    "solver": "fast",   # "fast" or "exact" (the reference; docs/methods/tensor.md, Fast solver)
     "tile": None,       # None: exact solver one tile; fast: one tile up to AUTO_UNTILED_PIXELS
                         # pixels, tiles of at most AUTO_TILE (height, width) above; an int
                         # (square) or a (height, width) pair asks for tiles of that size
     "overlap": 6,       # least overlap of neighbouring tiles (pixels), blended linearly; 2 left
-                        # visible seams on real stacks (docs/algorithm.md, Fast solver, item 7)
+                        # visible seams on real stacks (docs/methods/tensor.md, Tiling)
     "workers": None,    # threads for the initial diffuse, the tiles and the slices;
                         # None: polcam.parallel.default_workers() (the CPU count, at most 8)
     "device": None,     # None: numpy; "cpu", "cuda", ...: the PyTorch backend (torch extra)
@@ -86,15 +86,15 @@ OPTION_TYPES: dict[str, Any] = {
 #: The paper's stopping tolerance, kept by the exact solver.
 EXACT_TOL = 1e-5
 #: Stopping tolerance of the fast solver: on the ten synthetic scenes at 256 x 256 it kept the
-#: diffuse PSNR within 0.04 dB of the exact solver's (3e-4: 0.015 dB, 1e-3: 0.09 dB; docs/benchmarks.md,
-#: Tensor solver speed).
+#: diffuse PSNR within 0.04 dB of the exact solver's (3e-4: 0.015 dB, 1e-3: 0.09 dB;
+#: docs/decisions/tensor-fast-solver.md).
 FAST_TOL = 5e-4
 #: Images up to this many pixels are one tensor problem (the answer of the exact solver).
 AUTO_UNTILED_PIXELS = 256 * 256
 #: Largest tile (height, width) used above that size; each side is shrunk to the smallest that
 #: needs no more tiles (:func:`fit_side`).  Narrow tiles make the Gram side of a slice small
 #: (3 x 32 = 96 columns: eigenproblems of 96 instead of 192 for 64 x 64 tiles) at the same
-#: quality (docs/benchmarks.md, Tensor solver speed).
+#: quality (docs/decisions/tensor-fast-solver.md).
 AUTO_TILE = (96, 32)
 #: Tiles per IALM call of the PyTorch backend on a CPU (on a GPU: as many as fit in a third of
 #: its free memory).
