@@ -77,31 +77,15 @@ KNOWN_PRIVATE_MODULES: dict[tuple[str, str], str] = {
 }
 
 #: Imports of polcam modules made inside functions, per module.  A module not listed may make none.
-#: Kept lazy on purpose: the torch backend (it imports torch) and the Rerun sink (it imports rerun).
-#: The rest are modules other tasks still change; the lead hoists them at merge and lowers these.
+#: The modules of tasks still open (resolve: method resolution once; speed) keep theirs until they
+#: merge; the lead hoists them then and lowers these.
 LAZY_BUDGET: dict[str, int] = {
-    "polcam.separation.polarized_residual": 2,      # torch_backend.check_device; longfn: check_efficiency
-    "polcam.separation.tensor.driver": 1,           # torch_backend
-    "polcam.separation.tensor.ialm": 2,             # numpy_backend / torch_backend, picked per call
-    "polcam.separation.tensor.options": 1,          # torch_backend
-    "polcam.sinks": 1,                              # polcam.sinks.rerun (rerun)
-    "polcam.sinks.rerun": 5,                        # sinks task
-    "polcam.sinks.rerun_web": 5,                    # sinks task
-    "polcam.sinks.files": 5,                        # sinks task (polcam.io looked up at call time by a test)
-    "polcam.acquisition.live": 5,                   # sinks task
-    "polcam.acquisition.run": 11,                   # sinks task
-    "polcam.acquisition.saving": 6,                 # sinks task
-    "polcam.camera.emulator": 2,                    # sinks task (camera settings)
-    "polcam.camera.registry": 1,                    # sinks task
-    "polcam.camera.replay": 4,                      # sinks task
+    "polcam.sinks": 1,                              # RerunSink on first use (polcam.sinks.__getattr__)
     "polcam.commands._args": 1,                     # resolve task
-    "polcam.commands.capture": 4,                   # sinks task (run_capture as a class)
     "polcam.commands.process": 12,                  # resolve task
     "polcam.pipeline": 8,                           # resolve task
-    "polcam.process": 21,                           # resolve task
+    "polcam.process": 20,                           # resolve task
     "polcam.process_checks": 12,                    # resolve task
-    "polcam.separation._illuminant": 1,             # longfn task
-    "polcam.separation._residual": 3,               # longfn task
     "polcam.bench.speed": 16,                       # speed task
 }
 

@@ -21,9 +21,13 @@ import time
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
+from polcam import parallel
+from polcam.camera.replay import as_recorded
 from polcam.frame import Frame
 from polcam.mosaic import Layout
 from polcam.pipeline import calibrate, live_maps, separate_layers, to_stack
+from polcam.separation import method_spec
+from polcam.separation._registry import estimated_illuminant, takes_illuminant
 from polcam.sinks.base import Record, Sink
 
 if TYPE_CHECKING:
@@ -84,9 +88,6 @@ def _start_workers_deaf_to_ctrl_c(method: str) -> int | None:
     can change a signal's handler: from another thread the workers start as
     they would anyway.  Returns the fork server's process id when it was started here.
     """
-    from polcam import parallel
-    from polcam.separation import method_spec
-
     if "workers" not in (method_spec(method).options or ()) or parallel.start_method() != "forkserver":
         return None
     if threading.current_thread() is not threading.main_thread():
@@ -195,8 +196,6 @@ class LiveProcessor:
         self.held_illuminant: list[float] | None = None
         self._hold = False
         if hold_illuminant and separate is not None and "illuminant" not in self.method_options:
-            from polcam.separation._registry import takes_illuminant
-
             self._hold = takes_illuminant(separate)
         self.counters = counters or Counters()
         #: Frames whose maps were computed (and logged, with a sink).
@@ -275,7 +274,6 @@ class LiveProcessor:
         """
         if self.calibration is None:
             return frame
-        from polcam.camera.replay import as_recorded
 
         return calibrate(as_recorded(frame), self.calibration)
 
@@ -351,8 +349,6 @@ class LiveProcessor:
 
     def _hold_from(self, info: dict[str, Any]) -> None:
         """Keep the illuminant a separation estimated, for the separations that follow."""
-        from polcam.separation._registry import estimated_illuminant
-
         est = estimated_illuminant(info)
         if est is not None:
             self.held_illuminant = est

@@ -88,10 +88,15 @@ from polcam.acquisition.saving import (
     existing_frames,
 )
 from polcam.acquisition.summary import summarize, write_summary
+from polcam.calibration import CalibrationError, apply_calibration
 from polcam.camera.base import Camera, CameraDisconnectedError, CapturedFrame, FrameTimeout
-from polcam.errors import LayoutError, MethodError, PolcamError
+from polcam.camera.replay import as_recorded
+from polcam.errors import FrameWriteError, LayoutError, MethodError, PolcamError
 from polcam.frame import Frame
+from polcam.separation import default_method, method_spec, methods
+from polcam.separation._registry import check_options
 from polcam.sinks.base import FanOut, Record, Sink
+from polcam.sinks.rerun import RerunSink
 
 if TYPE_CHECKING:
     from polcam.calibration.store import Calibration
@@ -105,8 +110,6 @@ def _check_calibration(calibration: Calibration, camera: Camera) -> tuple[str | 
     The per-cell correction matrices are built here, once, so the live view
     does not wait for them on its first frame.
     """
-    from polcam.calibration import CalibrationError, apply_calibration
-
     where = f"calibration {calibration.source}" if calibration.source else "the calibration"
     if camera.layout is not None and camera.layout != calibration.layout:
         raise CalibrationError(f"layout mismatch: camera {camera.camera_id} sends layout {camera.layout}, "
@@ -125,9 +128,6 @@ def _check_calibration(calibration: Calibration, camera: Camera) -> tuple[str | 
 
 def _refusal(calibration: Calibration, frame: Frame, camera_id: str) -> PolcamError | None:
     """The error that stops a capture whose first frame does not fit the calibration, or ``None``."""
-    from polcam.calibration import CalibrationError
-    from polcam.camera.replay import as_recorded
-
     try:
         calibration.check_frame(as_recorded(frame))
     except CalibrationError as exc:
@@ -215,8 +215,6 @@ class Capture:
         CalibrationError, LayoutError, MethodError, FrameWriteError
             As :func:`run_capture`; nothing is captured.
         """
-        from polcam.errors import FrameWriteError
-
         opts = self.options
         if opts.save_format not in SAVE_FORMATS:
             raise FrameWriteError(f"save format {opts.save_format!r}: expected one of {', '.join(SAVE_FORMATS)}")
@@ -246,22 +244,16 @@ class Capture:
                 "(imx250mzr, imx250myr, mono:A,B,C,D, color:A,B,C,D:BAYER), or --separate none without --rerun"
             )
         if separate == "default" and layout is not None:  # the registry's default for the sensor
-            from polcam.separation import default_method
 
             separate = default_method("stack" if layout.is_color else "mono-stack")
         if separate_options and separate is None:
             raise MethodError(f"separation options {sorted(separate_options)} given without a separation method")
         if separate is not None:
-            from polcam.separation import method_spec
-            from polcam.separation._registry import check_options
-
             if separate == "imin" and separate_options:  # computed from the live maps, not by separate()
                 raise MethodError(f"the live imin layers take no options; got {sorted(separate_options)}")
             spec = method_spec(separate)
             check_options(separate, dict(separate_options or {}))
             if layout is not None and not layout.is_color and not spec.mono:
-                from polcam.separation import methods
-
                 raise MethodError(
                     f"separation method {separate!r} needs a colour sensor; camera layout is {layout}; "
                     f"for mono use one of {', '.join(m for m in methods() if method_spec(m).mono)} or none"
@@ -273,8 +265,6 @@ class Capture:
 
     def _prepare_out(self) -> None:
         """Before the camera starts: a folder that cannot take frames is refused now."""
-        from polcam.errors import FrameWriteError
-
         out = self.out
         assert out is not None
         self.created_out = not out.exists()
@@ -294,8 +284,6 @@ class Capture:
         opts = self.options
         rerun = opts.rerun
         if rerun is not None:
-            from polcam.sinks.rerun import RerunSink
-
             if str(rerun) not in ("spawn", "serve") and not Path(rerun).exists():
                 self.new_rrd = Path(rerun)
             sink = RerunSink(rerun, raw_every=opts.raw_every, view_scale=opts.view_scale, bind=opts.rerun_bind,

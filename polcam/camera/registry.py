@@ -17,6 +17,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from polcam.camera.base import CameraNotFoundError
+
 if TYPE_CHECKING:
     from polcam.camera.base import Camera
 
@@ -98,8 +100,6 @@ def open_camera(device: str, **options: Any) -> Camera:
     2 imx250mzr 20
     >>> tmp.cleanup()
     """
-    from polcam.camera.base import CameraNotFoundError
-
     dev = str(device).strip()
     if not dev:
         raise CameraNotFoundError(

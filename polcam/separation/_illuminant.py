@@ -38,6 +38,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
 
@@ -341,8 +342,6 @@ def _own_colour_weighted(terms: Any, x: Any, ok: Any, dist: float) -> tuple[Any,
     ``terms`` (H, W, 3) float64, ``x`` the (4, H, W, 3) float64 stack and ``ok`` (H, W) bool, numpy
     or torch (the result is of the same kind).
     """
-    from polcam import _imageops
-
     xp = namespace(terms)
     ic = x.mean(axis=0)
     imin = xp.maximum(ic - 0.5 * xp.hypot(x[0] - x[2], x[1] - x[3]), 0.0)

@@ -17,8 +17,10 @@ import numpy as np
 
 from polcam import _imageops
 from polcam._xp import namespace
+from polcam.filters import joint_bilateral
 from polcam.separation._illuminant import SATURATED, plane_basis
 from polcam.separation._polarization_noise import COHERENT_KSIG, noise_reduction, prior_removal
+from polcam.separation.shen13 import cluster_ratios, ratio_specular
 
 __all__ = ["residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
 
@@ -362,9 +364,6 @@ def _specular_free(image: Any, smooth: float) -> Any:
     the image's mean over channels: spatial sigma ``smooth`` pixels, range sigma a tenth of the
     guide's maximum, so material edges of different brightness keep their own ratios.
     """
-    from polcam.filters import joint_bilateral
-    from polcam.separation.shen13 import cluster_ratios, ratio_specular
-
     xp = namespace(image)
     q_map, _ = cluster_ratios(image)
     ok = xp.isfinite(q_map)

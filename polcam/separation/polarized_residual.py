@@ -46,10 +46,11 @@ from polcam.separation._clipping import declipped, fill_clipped_highlights
 from polcam.separation._diffuse_polarization import radial_share
 from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import peak_excess
-from polcam.separation._illuminant import SATURATED, estimate_illuminant
+from polcam.separation._illuminant import SATURATED, check_efficiency, estimate_illuminant
 from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
-from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
 from polcam.separation._registry import register
+from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
+from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "DEFAULTS"]
 
@@ -126,7 +127,6 @@ def _check(opts: dict[str, Any]) -> None:
     if dev is not None:
         if not isinstance(dev, str):
             raise MethodError(f"polarized-residual: device={dev!r}: expected None (numpy) or a torch device name")
-        from polcam.separation.tensor.torch_backend import check_device
 
         check_device(dev)
     g = opts["illuminant"]
@@ -315,8 +315,6 @@ def _illuminant(s: Any, opts: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, A
         est = None
         eff = np.ones(3) if opts["efficiency"] is None else np.asarray(opts["efficiency"], np.float64)
         if opts["efficiency"] is not None:
-            from polcam.separation._illuminant import check_efficiency
-
             eff = check_efficiency(eff)
         source = "given"
     else:
