@@ -7,44 +7,30 @@ The pipeline (docs/architecture.md): raw frame -> :func:`demosaic` -> stack
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
-
+from polcam._version import __version__
 from polcam.demosaicing import demosaic
+from polcam.demosaicing import methods as _demosaic_methods
 from polcam.errors import PolcamError
 from polcam.frame import Frame
+from polcam.io import read_frame, read_image, write_image
 from polcam.mosaic import Layout, parse_layout
 from polcam.polarimetry import Stokes, aolp, dolp, imax, imin, stokes
 from polcam.separation import Separation, separate
+from polcam.separation import methods as _separation_methods
 
-_LAZY_IO = ("read_frame", "read_image", "write_image")
 
-
-def __getattr__(name: str):
-    """``METHODS`` / ``DEMOSAIC_METHODS`` read the registries now (a method registered later is listed);
-    the file functions load polcam.io (OpenImageIO, rawpy) on first use."""
+def __getattr__(name: str) -> tuple[str, ...]:
+    """``METHODS`` / ``DEMOSAIC_METHODS``: the registries' names now (a method registered later is listed)."""
     if name == "METHODS":
-        from polcam.separation import methods
-
-        return methods()
+        return _separation_methods()
     if name == "DEMOSAIC_METHODS":
-        from polcam.demosaicing import methods as demosaic_methods
-
-        return demosaic_methods()
-    if name in _LAZY_IO:
-        from polcam import io
-
-        return getattr(io, name)
+        return _demosaic_methods()
     raise AttributeError(f"module 'polcam' has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(__all__))
 
-
-try:
-    __version__ = version("polcam")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.0.0+unknown"
 
 __all__ = [
     "DEMOSAIC_METHODS",

@@ -29,6 +29,13 @@ from typing import Any
 
 import numpy as np
 
+from polcam.frame import Frame
+from polcam.io import write_frame
+from polcam.mosaic import parse_layout
+from polcam.sinks.rerun import dolp_ids, palettes
+from polcam.synth.patterns import stack_from_stokes
+from polcam.synth.render import mosaic
+
 __all__ = ["PLANTED", "BrowserUnavailable", "Page", "Served", "colour_fraction", "doc_screenshots",
            "find_chromium", "open_page", "planted_scene", "serve", "shows_planted", "viewer_screenshot"]
 
@@ -231,13 +238,6 @@ def planted_scene(folder: str | Path, *, name: str = "planted", count: int = 1, 
         = I and the imin diffuse is I), ``"dolp"`` (viridis at DoLP 0.5, bottom
         half) and ``"aolp"`` (hue of 60 degrees: pure green, bottom half).
     """
-    from polcam.frame import Frame
-    from polcam.io import write_frame
-    from polcam.mosaic import parse_layout
-    from polcam.sinks.rerun import dolp_ids, palettes
-    from polcam.synth.patterns import stack_from_stokes
-    from polcam.synth.render import mosaic
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     h2 = height // 2

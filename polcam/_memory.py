@@ -19,6 +19,8 @@ import math
 import resource
 import sys
 
+from polcam.separation import default_method
+
 __all__ = ["METHOD_PEAK_MB", "auto_workers", "available_mb", "peak_rss_mb", "reset_peak", "worker_peak_mb",
            "workers_for_memory"]
 
@@ -98,8 +100,6 @@ def auto_workers(method: str | None, resolution: str, cores: int, *, available: 
     whose expected peak (:func:`worker_peak_mb` of ``method``, None: the colour default, for a
     2448 x 2048 frame; four times the pixels at full resolution) fits in the available memory."""
     if method is None:
-        from polcam.separation import default_method
-
         method = default_method("stack")
     pixels = 2448 * 2048 * (4 if resolution == "full" else 1)
     return workers_for_memory(worker_peak_mb(method, pixels), cores, available=available)

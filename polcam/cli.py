@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import sys
 
-from polcam.commands import build_parser, main, reference_markdown, run_command
-from polcam.commands._args import parse_option
+from polcam.commands import build_parser, main, parse_option, reference_markdown, run_command
 
 __all__ = ["build_parser", "main", "parse_option", "reference_markdown", "run_command"]
 

@@ -41,9 +41,11 @@ __all__ = [
     "Layout",
     "PixelFormat",
     "PIXEL_FORMATS",
+    "VENDOR_ALIASES",
     "parse_layout",
     "pixel_format",
     "supported_pixel_formats",
+    "vendor_key",
 ]
 
 #: Polarizer angles in degrees, in the order of every polcam stack.
@@ -412,8 +414,8 @@ PIXEL_FORMATS: dict[tuple[str, str], PixelFormat] = {
     (f.vendor, f.name): f for f in _standard() + _vendors()
 }
 
-# Vendor names as cameras report DeviceVendorName, folded to one registry key.
-_VENDOR_ALIASES = {
+#: Vendor names as cameras report DeviceVendorName (lower case), folded to one registry key.
+VENDOR_ALIASES: dict[str, str] = {
     "lucid": "LUCID Vision Labs",
     "lucid vision labs": "LUCID Vision Labs",
     "lucid vision labs inc.": "LUCID Vision Labs",
@@ -430,13 +432,14 @@ _VENDOR_ALIASES = {
 }
 
 
-def _vendor_key(vendor: str | None) -> str | None:
+def vendor_key(vendor: str | None) -> str | None:
+    """The registry's vendor key for a camera's DeviceVendorName (None: no vendor given)."""
     if not vendor:
         return None
     v = vendor.strip().lower()
-    if v in _VENDOR_ALIASES:
-        return _VENDOR_ALIASES[v]
-    for alias, key in _VENDOR_ALIASES.items():
+    if v in VENDOR_ALIASES:
+        return VENDOR_ALIASES[v]
+    for alias, key in VENDOR_ALIASES.items():
         if v.startswith(alias):
             return key
     return vendor.strip()
@@ -454,7 +457,7 @@ def pixel_format(name: str, vendor: str | None = None) -> PixelFormat:
     PixelFormatError
         Unknown name for that vendor; the message lists the supported names.
     """
-    key = _vendor_key(vendor)
+    key = vendor_key(vendor)
     if key is not None and (key, name) in PIXEL_FORMATS:
         return PIXEL_FORMATS[(key, name)]
     if ("*", name) in PIXEL_FORMATS:
@@ -478,7 +481,7 @@ def pixel_format(name: str, vendor: str | None = None) -> PixelFormat:
 
 def supported_pixel_formats(vendor: str | None = None) -> list[str]:
     """Names of the pixel formats polcam reads, for one vendor or all."""
-    key = _vendor_key(vendor)
+    key = vendor_key(vendor)
     return sorted({n for (v, n) in PIXEL_FORMATS if key is None or v in ("*", key)})
 
 

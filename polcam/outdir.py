@@ -27,9 +27,10 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from polcam import __version__
+from polcam._jsonable import jsonable
+from polcam._version import __version__
 from polcam.errors import FrameWriteError, PolcamError
-from polcam.io.atomic import os_reason, probe_folder
+from polcam.io.atomic import atomic_write, os_reason, probe_folder
 
 try:
     import fcntl
@@ -237,8 +238,6 @@ def summarize(results: Iterable[dict[str, Any]], problems: Sequence[dict[str, st
     ``peak_rss_mb``: the largest of the done frames' peak memory (None when
     no frame was computed).
     """
-    from polcam._jsonable import jsonable
-
     results = sorted(results, key=lambda r: r["name"])
     seen = {r["name"] for r in results}
     not_started = [j.input for j in planned or () if j.name not in seen]
@@ -261,8 +260,6 @@ def summarize(results: Iterable[dict[str, Any]], problems: Sequence[dict[str, st
 
 def write_summary(out_dir: Path, summary: dict[str, Any]) -> Path:
     """Write OUT_DIR/summary.json atomically."""
-    from polcam.io.atomic import atomic_write
-
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_write(out_dir / "summary.json", "w") as fh:
         json.dump(summary, fh, indent=2)

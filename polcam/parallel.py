@@ -72,6 +72,7 @@ __all__ = [
     "map_workers",
     "submit_workers",
     "blas_limit",
+    "limit_blas",
     "start_method",
     "context",
     "start_workers",
@@ -129,7 +130,7 @@ def start_workers(preload: Sequence[str] = ()) -> str:
     return method
 
 
-def _limit_blas(threads: int, then: Callable[[], None] | None = None) -> None:
+def limit_blas(threads: int, then: Callable[[], None] | None = None) -> None:
     """Worker initializer: at most ``threads`` BLAS/OpenMP threads for the worker's life, then ``then()``."""
     threadpool_limits(limits=threads)
     if then is not None:
@@ -297,7 +298,7 @@ def process_pool(workers: int, *, preload: Sequence[str] = (), blas_threads: int
 
     ``initializer``: a module-level function each worker runs once after limiting its threads.
     """
-    return ProcessPoolExecutor(max_workers=workers, mp_context=context(preload), initializer=_limit_blas,
+    return ProcessPoolExecutor(max_workers=workers, mp_context=context(preload), initializer=limit_blas,
                                initargs=(int(blas_threads), initializer))
 
 

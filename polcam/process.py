@@ -53,7 +53,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from polcam import __version__
+from polcam._version import __version__
 from polcam._hashing import sha256_file
 from polcam.errors import PolcamError
 from polcam.sinks.base import FanOut, Record, Sink
@@ -317,7 +317,7 @@ def _one_line(exc: BaseException, input_path: str, limit: int = 500) -> str:
 def _unmark_finished(target: Path) -> None:
     """Remove ``target/meta.json`` before any product is replaced: a frame cut short has none."""
     from polcam.errors import FrameWriteError
-    from polcam.io.atomic import _fsync_dir
+    from polcam.io.atomic import fsync_dir
 
     meta = target / "meta.json"
     try:
@@ -326,7 +326,7 @@ def _unmark_finished(target: Path) -> None:
         return
     except OSError as exc:
         raise FrameWriteError(f"cannot replace the outputs: {exc.strerror or exc}", path=meta) from exc
-    _fsync_dir(target)
+    fsync_dir(target)
 
 
 def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, sep: ResolvedSeparation, dem: ResolvedDemosaic,

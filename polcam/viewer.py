@@ -27,11 +27,18 @@ the server runs until Ctrl-C or SIGTERM.
 from __future__ import annotations
 
 import signal
-import sys
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
+
+from polcam.errors import FrameReadError, LayoutError
+from polcam.io import read_frame
+from polcam.io.listing import is_raw_file, raw_files_in
+from polcam.pipeline import run_frame
+from polcam.process import layout_hint
+from polcam.sinks.rerun import RerunSink
+from polcam.sinks.rerun_web import WebServer, native_viewer
 
 __all__ = ["EXPECTED", "PRODUCTS", "Target", "check_recording", "frame_folders", "kind_of", "log_path", "resolve",
            "view"]
@@ -67,8 +74,6 @@ def check_recording(path: str | Path) -> list[str]:
 
     import rerun.chunk as rrc
 
-    from polcam.errors import FrameReadError
-
     path = Path(path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -95,8 +100,6 @@ def _is_processed_folder(p: Path) -> bool:
 
 
 def _check_frame_folders(p: Path) -> None:
-    from polcam.errors import FrameReadError
-
     for folder in frame_folders(p):
         for name in PRODUCTS:
             if not any((folder / f"{name}{ext}").is_file() for ext in (".exr", ".tif", ".tiff")):
@@ -131,9 +134,6 @@ def resolve(path: str | Path) -> Target:
     LayoutError
         A raw frame whose sidecar names no layout.
     """
-    from polcam.errors import FrameReadError, LayoutError
-    from polcam.io.listing import is_raw_file, raw_files_in
-
     p = Path(path)
     if p.is_file():
         if p.suffix.lower() != ".rrd":
@@ -150,8 +150,6 @@ def resolve(path: str | Path) -> Target:
         _check_frame_folders(p)
         return Target("processed", p)
     if any(is_raw_file(f) for f in p.iterdir()):
-        from polcam.process import layout_hint
-
         for f in raw_files_in(p):
             if layout_hint(f) is None:
                 raise LayoutError("no layout: the file has no sidecar saying it (write one, or view it through "
@@ -213,10 +211,6 @@ def log_path(sink: Any, path: str | Path, *, on_frame: Callable[[str], None] | N
         return n
     if kind != "raw":
         raise ValueError(f"{path}: log_path takes a folder, not an {kind} file")
-    from polcam.errors import LayoutError
-    from polcam.io import read_frame
-    from polcam.io.listing import raw_files_in
-    from polcam.pipeline import run_frame
 
     for i, f in enumerate(raw_files_in(path)):
         if stop and stop():
@@ -290,9 +284,6 @@ def view(path: str | Path, *, web: bool = False, port: int = 9090, bind: str = "
         A path :func:`resolve` refuses, or a ``--web`` port already in use
         (both before anything is served).
     """
-    from polcam.sinks.rerun import RerunSink
-    from polcam.sinks.rerun_web import WebServer, native_viewer
-
     kind, path, notes = resolve(path)  # before any viewer starts: a bad path never gets a URL
     for note in notes:
         out(note)

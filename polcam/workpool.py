@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import wait as wait_ready
 from typing import Any
 
-from polcam.parallel import _limit_blas, context
+from polcam.parallel import limit_blas, context
 
 __all__ = ["Lost", "orphaned", "run_jobs"]
 
@@ -93,7 +93,7 @@ def _worker_main(conn: Any, lifeline: Any, fn: Callable[[Any], Any], blas_thread
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _LIFELINE = lifeline
     threading.Thread(target=_watch_lifeline, args=(lifeline,), name="polcam-lifeline", daemon=True).start()
-    _limit_blas(blas_threads, initializer)
+    limit_blas(blas_threads, initializer)
     while True:
         try:
             msg = conn.recv()

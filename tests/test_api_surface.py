@@ -45,7 +45,7 @@ SURFACE: dict[str, set[str]] = {
     "polcam.acquisition": {"Capture", "CaptureOptions", "Counters", "FrameSaver", "LiveProcessor", "SAVE_FORMATS",
                            "StopRequest", "frame_name", "run_capture", "write_captured_frame"},
     "polcam.mosaic": {"ANGLES", "BAYER_PATTERNS", "LAYOUTS", "Layout", "PIXEL_FORMATS", "PixelFormat",
-                      "parse_layout", "pixel_format", "supported_pixel_formats"},
+                      "VENDOR_ALIASES", "parse_layout", "pixel_format", "supported_pixel_formats", "vendor_key"},
     "polcam.frame": {"Frame", "SIDECAR_KEYS"},
     "polcam.errors": {"CameraUnavailableError", "FrameReadError", "FrameWriteError", "LayoutError",
                       "MethodError", "PixelFormatError", "PolcamError"},

@@ -563,7 +563,7 @@ def _cell_scene() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def miscalibrated(tmp_path_factory):
     """A replay folder of a synthetic scene seen by an imperfect sensor, and that sensor's calibration file."""
     from polcam.calibration import calibrate_dark, calibrate_flat, calibrate_polarizer, save_calibration
-    from polcam.calibration.simulate import ImperfectSensor
+    from polcam.synth.sensor import ImperfectSensor
 
     root = tmp_path_factory.mktemp("miscalibrated")
     sensor = ImperfectSensor.random("imx250mzr", CAL_SIZE, CAL_SIZE, seed=11)
@@ -706,7 +706,7 @@ def test_calibrated_colour_capture_separates_the_corrected_stack(tmp_path):
     # colour sensor, a separation method on its own thread: the layers it logs are those of the
     # corrected mosaic (apply_calibration, then the bilinear cell stack), not of the raw one
     from polcam.calibration import apply_calibration, calibrate_dark, calibrate_polarizer, save_calibration
-    from polcam.calibration.simulate import ImperfectSensor
+    from polcam.synth.sensor import ImperfectSensor
     from polcam.separation import separate
     from polcam.sinks.rerun import unit_u8
 

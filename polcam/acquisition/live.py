@@ -21,6 +21,8 @@ import time
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
+from polcam import parallel
+from polcam.camera.replay import as_recorded
 from polcam.demosaicing import resolve_demosaic
 from polcam.frame import Frame
 from polcam.mosaic import Layout
@@ -93,8 +95,6 @@ def _start_workers_deaf_to_ctrl_c(separation: ResolvedSeparation) -> int | None:
     can change a signal's handler: from another thread the workers start as
     they would anyway.  Returns the fork server's process id when it was started here.
     """
-    from polcam import parallel
-
     if "workers" not in (separation.spec.options or ()) or parallel.start_method() != "forkserver":
         return None
     if threading.current_thread() is not threading.main_thread():
@@ -299,7 +299,6 @@ class LiveProcessor:
         """
         if self.calibration is None:
             return frame
-        from polcam.camera.replay import as_recorded
 
         return calibrate(as_recorded(frame), self.calibration)
 

@@ -88,10 +88,14 @@ from polcam.acquisition.saving import (
     existing_frames,
 )
 from polcam.acquisition.summary import summarize, write_summary
+from polcam.calibration import CalibrationError, apply_calibration
 from polcam.camera.base import Camera, CameraDisconnectedError, CapturedFrame, FrameTimeout
-from polcam.errors import LayoutError, MethodError, PolcamError
+from polcam.camera.replay import as_recorded
+from polcam.errors import FrameWriteError, LayoutError, MethodError, PolcamError
 from polcam.frame import Frame
+from polcam.separation import layout_form, resolve_separation
 from polcam.sinks.base import FanOut, Record, Sink
+from polcam.sinks.rerun import RerunSink
 
 if TYPE_CHECKING:
     from polcam.calibration.store import Calibration
@@ -106,8 +110,6 @@ def _check_calibration(calibration: Calibration, camera: Camera) -> tuple[str | 
     The per-cell correction matrices are built here, once, so the live view
     does not wait for them on its first frame.
     """
-    from polcam.calibration import CalibrationError, apply_calibration
-
     where = f"calibration {calibration.source}" if calibration.source else "the calibration"
     if camera.layout is not None and camera.layout != calibration.layout:
         raise CalibrationError(f"layout mismatch: camera {camera.camera_id} sends layout {camera.layout}, "
@@ -126,9 +128,6 @@ def _check_calibration(calibration: Calibration, camera: Camera) -> tuple[str | 
 
 def _refusal(calibration: Calibration, frame: Frame, camera_id: str) -> PolcamError | None:
     """The error that stops a capture whose first frame does not fit the calibration, or ``None``."""
-    from polcam.calibration import CalibrationError
-    from polcam.camera.replay import as_recorded
-
     try:
         calibration.check_frame(as_recorded(frame))
     except CalibrationError as exc:
@@ -218,8 +217,6 @@ class Capture:
         CalibrationError, LayoutError, MethodError, FrameWriteError
             As :func:`run_capture`; nothing is captured.
         """
-        from polcam.errors import FrameWriteError
-
         opts = self.options
         if opts.save_format not in SAVE_FORMATS:
             raise FrameWriteError(f"save format {opts.save_format!r}: expected one of {', '.join(SAVE_FORMATS)}")
@@ -251,8 +248,6 @@ class Capture:
         if separate_options and separate is None:
             raise MethodError(f"separation options {sorted(separate_options)} given without a separation method")
         if separate is not None and layout is not None:  # resolved once for the sensor ("default": the registry's)
-            from polcam.separation import layout_form, resolve_separation
-
             if separate == "imin" and separate_options:  # computed from the live maps, not by separate()
                 raise MethodError(f"the live imin layers take no options; got {sorted(separate_options)}")
             self.separation = resolve_separation(None if separate == "default" else separate, layout_form(layout),
@@ -265,8 +260,6 @@ class Capture:
 
     def _prepare_out(self) -> None:
         """Before the camera starts: a folder that cannot take frames is refused now."""
-        from polcam.errors import FrameWriteError
-
         out = self.out
         assert out is not None
         self.created_out = not out.exists()
@@ -286,8 +279,6 @@ class Capture:
         opts = self.options
         rerun = opts.rerun
         if rerun is not None:
-            from polcam.sinks.rerun import RerunSink
-
             if str(rerun) not in ("spawn", "serve") and not Path(rerun).exists():
                 self.new_rrd = Path(rerun)
             sink = RerunSink(rerun, raw_every=opts.raw_every, view_scale=opts.view_scale, bind=opts.rerun_bind,

@@ -32,9 +32,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from polcam.errors import PolcamError
+from polcam.errors import FrameWriteError, PolcamError
 from polcam.frame import Frame
-from polcam.io.atomic import os_reason, probe_folder
+from polcam.io import read_sidecar, sidecar_path, write_frame
+from polcam.io.atomic import atomic_write, os_reason, probe_folder
+from polcam.io.sidecar import write_sidecar
 from polcam.sinks.base import Record, SinkBase
 
 __all__ = ["SAVE_FORMATS", "FrameSaver", "check_writable", "clean_stale", "existing_frames", "frame_name",
@@ -75,10 +77,6 @@ def write_captured_frame(path: Path, frame: Frame, *, extra: dict[str, Any] | No
     FrameWriteError
         An unwritable target or a frame that cannot be stored losslessly.
     """
-    from polcam.io import read_sidecar, sidecar_path, write_frame
-    from polcam.io.atomic import atomic_write
-    from polcam.io.sidecar import write_sidecar
-
     path = Path(path)
     payload = getattr(frame, "payload", None)
     try:
@@ -119,16 +117,9 @@ def check_writable(out: Path, *, need_bytes: int = 1 << 20) -> Path:
         (read-only file system, permissions), or the disk is full; the
         message names the folder and the system's reason.
     """
-    from polcam.errors import FrameWriteError
-
     out = Path(out)
     free = probe_folder(out, cannot="cannot write frames into the output folder")
     if free is not None and free < need_bytes:
-        raise FrameWriteError(f"cannot write frames into the output folder: only {free} bytes free on its disk, "
-                              f"expected at least {need_bytes}", path=out)
-    return out
-    free = st.f_bavail * st.f_frsize
-    if free < need_bytes:
         raise FrameWriteError(f"cannot write frames into the output folder: only {free} bytes free on its disk, "
                               f"expected at least {need_bytes}", path=out)
     return out

@@ -33,7 +33,7 @@ Mono stacks: the same, with the figures of the mono camera (the real stacks'
 luminance through an IMX250MZR mosaic, the family's luminance truth); where
 the table holds no real figures for a mono method, step 4 alone.
 
-``python -m polcam.bench.default_rule --real R [--real R2] [--real-mono RM] --validation V
+``polcam bench default-rule --real R [--real R2] [--real-mono RM] --validation V
 --validation-mono M --out FILE`` assembles the table from the outputs of ``polcam bench real
 --relit [--mono]`` (``R``, ``RM`` = their ``relit.json``) and ``polcam bench quality --set random --split validation
 [--mono]`` (``V``, ``M`` = their ``scores.csv``), prints the choice and writes
@@ -43,7 +43,6 @@ test checks the registry against it).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from collections.abc import Sequence
@@ -173,31 +172,3 @@ def build_table(real: Sequence[Path], validation: Path, validation_mono: Path, *
     }
     table["picked"] = {"stack": pick(table["colour"]), "mono-stack": pick(table["mono"])}
     return table
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m polcam.bench.default_rule``."""
-    p = argparse.ArgumentParser(prog="python -m polcam.bench.default_rule", description=__doc__.splitlines()[0])
-    p.add_argument("--real", type=Path, action="append", required=True,
-                   help="relit.json of polcam bench real --relit (repeat for several runs)")
-    p.add_argument("--real-mono", type=Path, action="append", default=[],
-                   help="relit.json of polcam bench real --relit --mono (repeat)")
-    p.add_argument("--validation", type=Path, required=True, help="scores.csv of the colour validation split")
-    p.add_argument("--validation-mono", type=Path, required=True, help="scores.csv of the mono validation split")
-    p.add_argument("--command", action="append", default=[], help="a command that produced the inputs (repeat)")
-    p.add_argument("--out", type=Path, help="write the table here (JSON)")
-    a = p.parse_args(argv)
-    table = build_table(a.real, a.validation, a.validation_mono, real_mono=a.real_mono, commands=a.command)
-    for form, (m, why) in table["picked"].items():
-        print(f"{form}: {m} ({why})")
-    if a.out is not None:
-        from polcam.io.atomic import atomic_write
-
-        with atomic_write(a.out, "w") as fh:
-            fh.write(json.dumps(table, indent=1) + "\n")
-        print(f"wrote {a.out}")
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -37,15 +37,12 @@ measured on a uniform synthetic scene of known AoLP and colour
 (:func:`polanalyser_order`), and the benchmark fails if it is not a clean
 permutation.
 
-Run as ``polcam bench demosaic --data DIR`` (or ``python -m polcam.bench.demosaic``, the same options).
+Run as ``polcam bench demosaic --data DIR``.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
-import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -69,7 +66,6 @@ __all__ = [
     "format_markdown",
     "load_real_stack",
     "load_real_stacks",
-    "main",
     "polanalyser_order",
     "quality",
     "run",
@@ -448,46 +444,3 @@ def format_markdown(rows: Sequence[dict[str, Any]]) -> str:
             lines.append(f"polanalyser output order, measured: {ang}; {ch}.")
             lines.append("")
     return "\n".join(lines)
-
-
-def add_arguments(ap: argparse.ArgumentParser) -> None:
-    """The options of ``polcam bench demosaic`` (and ``python -m polcam.bench.demosaic``)."""
-    ap.add_argument("--data", "--data-dir", dest="data", type=Path, default=None,
-                    help="shared data folder with the real stacks (real-color-stack/, real-color-stacks/; "
-                         "default: synthetic scenes only)")
-    ap.add_argument("--size", type=int, default=None,
-                    help="scene side in pixels (default: whole real stack, 512 for synthetic)")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the synthetic scenes (default 0)")
-    ap.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS),
-                    help=f"methods (default: {' '.join(DEFAULT_METHODS)})")
-    ap.add_argument("--layouts", nargs="+", default=list(DEFAULT_LAYOUTS), help="layouts")
-    ap.add_argument("--no-speed", action="store_true", help="skip the timing")
-    ap.add_argument("--no-quality", action="store_true", help="skip the quality measurements")
-    ap.add_argument("--repeats", type=int, default=5, help="timed runs per method (default 5)")
-    ap.add_argument("--json", type=Path, default=None, help="also write the rows to this JSON file")
-
-
-def run_args(args: argparse.Namespace) -> int:
-    """Run a parsed ``polcam bench demosaic``: Markdown on stdout, optionally the rows as JSON."""
-    if args.data is not None and not args.data.is_dir():
-        print(f"error: --data {args.data}: not a folder (expected the folder holding real-color-stack/)",
-              file=sys.stderr)
-        return 2
-    rows = run(data_dir=args.data, size=args.size, seed=args.seed, methods=args.methods,
-               layouts=args.layouts, measure_quality=not args.no_quality, speed=not args.no_speed,
-               repeats=args.repeats)
-    sys.stdout.write(format_markdown(rows) + "\n")
-    if args.json is not None:
-        args.json.write_text(json.dumps(rows, indent=1))
-    return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m polcam.bench.demosaic``: the same as ``polcam bench demosaic``."""
-    ap = argparse.ArgumentParser(prog="python -m polcam.bench.demosaic", description=__doc__.split("\n")[0])
-    add_arguments(ap)
-    return run_args(ap.parse_args(argv))
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

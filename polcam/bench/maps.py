@@ -30,6 +30,13 @@ from typing import Any
 
 import numpy as np
 
+from polcam import pipeline
+from polcam.demosaicing import default_method, demosaic
+from polcam.errors import MethodError
+from polcam.mosaic import parse_layout
+from polcam.synth.render import mosaic, render
+from polcam.synth.scenes import scene as make_scene
+
 __all__ = ["MapsRow", "format_markdown", "frame", "routes", "run"]
 
 ANGLES_DEG = (0.0, 45.0, 90.0, 135.0)
@@ -49,9 +56,6 @@ class MapsRow:
 
 def frame(layout: str, *, scene: str = "Bunny5", seed: int = 0) -> np.ndarray:
     """A 2448 x 2048 uint16 raw mosaic (12-bit counts) of a rendered ``scene`` for ``layout``."""
-    from polcam.synth.render import mosaic, render
-    from polcam.synth.scenes import scene as make_scene
-
     r = render(make_scene(scene), size=1224, seed=seed)
     st = np.tile(r.stack, (1, 2, 2, 1))[:, :2048, :2448]
     return np.round(np.clip(mosaic(st, layout), 0.0, 1.0) * 4095.0).astype(np.uint16)
@@ -60,10 +64,6 @@ def frame(layout: str, *, scene: str = "Bunny5", seed: int = 0) -> np.ndarray:
 def routes(layout: str) -> dict[str, Callable[[np.ndarray], Any]]:
     """The timed routes for ``layout``: name -> ``fn(raw) -> (s0, dolp, aolp)``."""
     import polanalyser as pa
-
-    from polcam import pipeline
-    from polcam.demosaicing import demosaic, default_method
-    from polcam.mosaic import parse_layout
 
     code = pa.COLOR_PolarRGB if parse_layout(layout).is_color else pa.COLOR_PolarMono
     angles = np.deg2rad(np.array(ANGLES_DEG))
@@ -112,8 +112,6 @@ def run(*, repeat: int = 5, layouts: Sequence[str] = ("imx250mzr", "imx250myr"),
     try:
         import polanalyser  # noqa: F401
     except ImportError:
-        from polcam.errors import MethodError
-
         raise MethodError("bench speed --maps needs polanalyser (pip install polanalyser)") from None
     rows: list[MapsRow] = []
     for layout in layouts:

@@ -16,7 +16,6 @@ paper's (it does not publish them), so only orderings compare, not values.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import time
@@ -29,6 +28,10 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from polcam.io.atomic import atomic_path, atomic_write
+from polcam.separation import METHODS, method_spec, separate
+from polcam.synth.family import render_family, split_seeds
+from polcam.synth.render import render
+from polcam.synth.scenes import SCENES, STRESS, scene
 
 __all__ = ["PAPER_TABLES", "Score", "psnr", "ssim", "score", "run", "run_family", "family_summary", "format_table",
            "write_outputs"]
@@ -130,8 +133,6 @@ SCENE_SETS = ("paper", "stress", "all")
 
 def scene_set(name: str) -> list[str]:
     """Scene names of a set in :data:`SCENE_SETS`."""
-    from polcam.synth.scenes import SCENES, STRESS
-
     if name not in SCENE_SETS:
         raise ValueError(f"scene set {name!r}: expected one of {', '.join(SCENE_SETS)}")
     return {"paper": list(SCENES), "stress": list(STRESS), "all": [*SCENES, *STRESS]}[name]
@@ -165,10 +166,6 @@ def run(*, scenes: Sequence[str] | None = None, methods: Sequence[str] | None = 
     scene_stats : dict
         Per scene: specular-to-diffuse energy ratio and saturated fraction.
     """
-    from polcam.separation import METHODS, method_spec
-    from polcam.synth.render import render
-    from polcam.synth.scenes import SCENES, scene
-
     names = list(scenes or SCENES)
     meths = list(methods or [m for m in METHODS if not mono or method_spec(m).mono])
     scores: list[Score] = []
@@ -193,8 +190,6 @@ def run(*, scenes: Sequence[str] | None = None, methods: Sequence[str] | None = 
 def _score_scene(name: str, stack: np.ndarray, truth: np.ndarray, mask: np.ndarray, meths: Sequence[str],
                  options: dict[str, dict[str, Any]], progress: bool) -> list[Score]:
     """Every method on one stack, scored against the true diffuse."""
-    from polcam.separation import separate
-
     scores: list[Score] = []
     for m in meths:
         t0 = time.perf_counter()
@@ -247,9 +242,6 @@ def run_family(split: str = "validation", n: int = 40, *, seed: int | None = Non
     seeds : list of int
     master : int or None
     """
-    from polcam.separation import METHODS, method_spec
-    from polcam.synth.family import render_family, split_seeds
-
     seeds, master = split_seeds(split, n, seed=seed)
     meths = list(methods or [m for m in METHODS if not mono or method_spec(m).mono])
     for m in meths:
@@ -401,23 +393,3 @@ def _plot(scores: Sequence[Score], stats: dict[str, dict[str, float]], path: Pat
         fig.savefig(tmp, format="png")
     plt.close(fig)
     return path
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m polcam.bench.quality``."""
-    p = argparse.ArgumentParser(prog="polcam bench quality", description=__doc__.splitlines()[0])
-    p.add_argument("--size", type=int, default=128)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--scenes", nargs="+")
-    p.add_argument("--methods", nargs="+")
-    p.add_argument("--out", type=Path, default=Path("bench-output/quality"))
-    a = p.parse_args(argv)
-    scores, stats = run(scenes=a.scenes, methods=a.methods, size=a.size, seed=a.seed)
-    print(format_table(scores))
-    for f in write_outputs(scores, stats, a.out):
-        print(f"wrote {f}")
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -46,7 +46,6 @@ for evaluation, never copy them into the product.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import time
@@ -58,11 +57,14 @@ from typing import Any
 import cv2
 import numpy as np
 
+from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import FrameReadError, PolcamError
 from polcam.io.atomic import atomic_path, atomic_write
+from polcam.polarimetry import dolp, imin
+from polcam.separation import METHODS, method_spec, separate
 
 __all__ = ["RealScore", "find_scenes", "load_stack", "prepare", "relight", "camera_stack", "achromatic_mask",
-           "metrics", "run", "format_table", "write_outputs", "add_parser", "run_args"]
+           "metrics", "run", "format_table", "write_outputs", "default_data"]
 
 #: Threshold of the Imin checks (one 8-bit step is 1/255).
 OVER_IMIN = 3.0 / 255.0
@@ -179,15 +181,11 @@ def relight(true_stack: np.ndarray, *, exposure: float = 1.0,
 
 def camera_stack(true_stack: np.ndarray, *, layout: str = "imx250myr") -> np.ndarray:
     """What a colour polarization camera gives: ``true_stack`` mosaicked, demosaiced (default method), clipped."""
-    from polcam.demosaicing import demosaic, mosaic_stack
-
     raw = mosaic_stack(true_stack.astype(np.float32), layout=layout)
     return np.clip(demosaic(raw, layout=layout), 0.0, 1.0).astype(np.float64)
 
 
 def _imin(stack: np.ndarray) -> np.ndarray:
-    from polcam.polarimetry import imin
-
     return np.maximum(imin(stack), 0.0)
 
 
@@ -197,8 +195,6 @@ def achromatic_mask(true_stack: np.ndarray) -> np.ndarray:
     True DoLP of the grey image < 0.03, saturation ``(max - min) / max`` of the true mean < 0.12,
     mean intensity > 0.08.
     """
-    from polcam.polarimetry import dolp
-
     tmean = true_stack.mean(axis=0)
     tmax, tmin = tmean.max(-1), tmean.min(-1)
     sat = (tmax - tmin) / np.maximum(tmax, 1e-6)
@@ -251,8 +247,6 @@ def metrics(diffuse: np.ndarray, specular: np.ndarray, given: np.ndarray,
 
 
 def _colour_methods() -> list[str]:
-    from polcam.separation import METHODS
-
     return list(METHODS)
 
 
@@ -292,8 +286,6 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     MethodError
         An unknown method name.
     """
-    from polcam.separation import method_spec
-
     found = _scenes(data, scenes)
     meths = list(methods or _colour_methods())
     for m in meths:
@@ -341,8 +333,6 @@ def _score(name: str, m: str, given: np.ndarray, true: np.ndarray, ach: np.ndarr
            options: dict[str, Any]) -> tuple[RealScore, Any]:
     """One method on one scene: its score and the separation (None when the method failed: the
     error is in the score, not fatal to the table)."""
-    from polcam.separation import separate
-
     t0 = time.perf_counter()
     try:
         res = separate(given, method=m, **options)
@@ -420,83 +410,10 @@ def write_outputs(scores: Sequence[RealScore], layers: dict[str, dict[str, np.nd
     return written
 
 
-def _default_data() -> Path | None:
+def default_data() -> Path | None:
+    """The shared data folder holding the real stacks (``../shared/data`` from the working folder or
+    the checkout), or None when neither holds one."""
     for cand in (Path("../shared/data"), Path(__file__).resolve().parents[2].parent / "shared" / "data"):
         if find_scenes(cand):
             return cand
     return None
-
-
-def add_parser(subparsers: Any) -> argparse.ArgumentParser:
-    """Add ``real`` to ``polcam bench``'s sub-commands."""
-    p = subparsers.add_parser(
-        "real", help="every colour separation method on real colour stacks",
-        description="Every colour separation method on real full-resolution colour polarization stacks "
-                    "(mosaicked in the IMX250MYR layout, demosaiced, separated), judged by physics: "
-                    "diffuse above Imin, specular colour spread, brightest 1 % removed, achromatic "
-                    "unpolarized pixels kept, seconds; a Markdown table and a montage per scene.")
-    p.add_argument("--data", type=Path, help="folder with real-color-stack/ and real-color-stacks/ "
-                                             "(default ../shared/data when present)")
-    p.add_argument("--methods", nargs="+", help="only these methods (default: all)")
-    p.add_argument("--scenes", nargs="+", help="only these scenes (default: all found)")
-    p.add_argument("--crop", type=int, nargs=4, metavar=("Y", "X", "H", "W"),
-                   help="crop the true stacks to this window first")
-    p.add_argument("--scale", type=float, help="then resize by this factor in (0, 1] (default 1; 0.5 with --relit)")
-    p.add_argument("--exposure", type=float, default=1.0,
-                   help="relight: multiply the true stacks by this gain, then clip at 1 (default 1)")
-    p.add_argument("--light", type=float, nargs=3, default=(1.0, 1.0, 1.0), metavar=("R", "G", "B"),
-                   help="relight: the light's colour against the recording's white balance (default 1 1 1)")
-    p.add_argument("--relit", action="store_true",
-                   help="the standing table: every stack under every relit variant (recorded, overexposed, "
-                        "tinted, tinted+overexposed; polcam.bench.relit) with the no-harm measures: matte "
-                        "achromatic kept, brightest 1 %% removed, specular spread, structure invented in "
-                        "clipped regions")
-    p.add_argument("--variants", nargs="+", help="with --relit: only these variants (default: all)")
-    p.add_argument("--mono", action="store_true",
-                   help="with --relit: the mono camera (the stacks' luminance through an IMX250MZR mosaic) "
-                        "and the methods that take mono stacks")
-    p.add_argument("--out", type=Path, default=Path("bench-output/real"), help="output folder "
-                                                                              "(default bench-output/real)")
-    p.set_defaults(bench_run=run_args)
-    return p
-
-
-def run_args(args: argparse.Namespace) -> int:
-    """Run ``polcam bench real`` from parsed arguments."""
-    import sys
-
-    data = args.data if args.data is not None else _default_data()
-    if data is None or not find_scenes(data):
-        print(f"error: --data {data}: no real colour stack found (expected real-color-stack/ or "
-              "real-color-stacks/<scene>/ with 0/45/90/135 PNGs)", file=sys.stderr)
-        return 2
-    if args.relit:   # polcam.commands.bench sends --relit to polcam.bench.relit.run_args
-        print("error: --relit is run by `polcam bench real --relit` (polcam.bench.relit)", file=sys.stderr)
-        return 2
-    if args.mono or args.variants:
-        print("error: --mono and --variants need --relit", file=sys.stderr)
-        return 2
-    try:
-        scores, layers = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
-                             scale=1.0 if args.scale is None else args.scale,
-                             exposure=args.exposure, light=args.light)
-    except PolcamError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(format_table(scores))
-    for f in write_outputs(scores, layers, args.out):
-        print(f"wrote {f}")
-    return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m polcam.bench.real``."""
-    p = argparse.ArgumentParser(prog="polcam bench")
-    add_parser(p.add_subparsers(dest="bench", required=True))
-    import sys
-
-    return run_args(p.parse_args(["real", *(sys.argv[1:] if argv is None else argv)]))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

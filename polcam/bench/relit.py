@@ -42,7 +42,6 @@ evaluation, never copy them into the product.
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -51,8 +50,13 @@ from typing import Any
 
 import numpy as np
 
+from polcam.bench.real import achromatic_mask, camera_stack, find_scenes, load_stack, metrics, prepare, relight
+from polcam.demosaicing import demosaic, mosaic_stack
+from polcam.errors import PolcamError
+from polcam.separation import METHODS, method_spec, separate
+
 __all__ = ["VARIANTS", "CLIP_LEVEL", "MIN_REGION", "RelitScore", "matte_mask", "invented_structure", "run", "format_table",
-           "summary", "run_args"]
+           "summary"]
 
 #: The relit variants: name -> (exposure, light RGB).  ``overexposed``: 1.5 times the light, what
 #: was above 2/3 of the white level clips; ``tinted``: the light a raw IMX250MYR frame sees
@@ -230,8 +234,6 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
     -------
     list of RelitScore
     """
-    from polcam.bench.real import achromatic_mask, camera_stack, load_stack, prepare, relight
-
     found, names, meths = _selection(data, scenes, variants, methods, mono)
     options = options or {}
     out: list[RelitScore] = []
@@ -260,10 +262,6 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
 def _selection(data: Path, scenes: Sequence[str] | None, variants: Sequence[str] | None,
                methods: Sequence[str] | None, mono: bool) -> tuple[dict[str, Any], list[str], list[str]]:
     """The stacks, variants and methods to run, each checked (PolcamError naming what is unknown)."""
-    from polcam.bench.real import find_scenes
-    from polcam.errors import PolcamError
-    from polcam.separation import METHODS, method_spec
-
     found = find_scenes(Path(data))
     if not found:
         raise PolcamError(f"--data {data}: no real colour stack found")
@@ -285,9 +283,6 @@ def _selection(data: Path, scenes: Sequence[str] | None, variants: Sequence[str]
 def _score(name: str, v: str, m: str, given: np.ndarray, true: np.ndarray, matte: np.ndarray, *, mono: bool,
            options: dict[str, Any]) -> RelitScore:
     """One method on one relit stack; a failing method is reported in ``error``, not fatal to the table."""
-    from polcam.bench.real import metrics
-    from polcam.separation import separate
-
     t0 = time.perf_counter()
     try:
         res = separate(given[..., 0] if mono else given, method=m, **options)
@@ -304,8 +299,6 @@ def _score(name: str, v: str, m: str, given: np.ndarray, true: np.ndarray, matte
 
 def _mono_camera(true_grey: np.ndarray) -> np.ndarray:
     """What a mono polarization camera gives: (4, H, W) mosaicked (IMX250MZR), demosaiced, clipped."""
-    from polcam.demosaicing import demosaic, mosaic_stack
-
     raw = mosaic_stack(true_grey.astype(np.float32), layout="imx250mzr")
     return np.clip(demosaic(raw, layout="imx250mzr"), 0.0, 1.0).astype(np.float64)
 
@@ -351,39 +344,3 @@ def summary(scores: Sequence[RelitScore]) -> dict[str, dict[str, float]]:
             "invented_max": float(max(inv)) if inv else 0.0,
         }
     return out
-
-
-def run_args(args: argparse.Namespace) -> int:
-    """Run ``polcam bench real --relit`` from parsed arguments (the parser is ``polcam.bench.real``'s)."""
-    import json
-    import sys
-
-    from polcam._jsonable import jsonable
-    from polcam.bench.real import _default_data, find_scenes
-    from polcam.errors import PolcamError
-    from polcam.io.atomic import atomic_write
-
-    data = args.data if args.data is not None else _default_data()
-    if data is None or not find_scenes(data):
-        print(f"error: --data {data}: no real colour stack found", file=sys.stderr)
-        return 2
-    if args.exposure != 1.0 or tuple(args.light) != (1.0, 1.0, 1.0):
-        print("error: --relit runs its own variants; expected no --exposure or --light", file=sys.stderr)
-        return 2
-    try:
-        scores = run(data, methods=args.methods, scenes=args.scenes, crop=args.crop,
-                     scale=0.5 if args.scale is None else args.scale, mono=args.mono, variants=args.variants)
-    except PolcamError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    table = format_table(scores)
-    print(table)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out / "relit.md", "w") as fh:
-        fh.write(table + "\n")
-    with atomic_write(out / "relit.json", "w") as fh:
-        fh.write(json.dumps(jsonable({"rows": [vars(s) for s in scores], "summary": summary(scores)}),
-                            indent=1) + "\n")
-    print(f"wrote {out / 'relit.md'}\nwrote {out / 'relit.json'}")
-    return 0

@@ -27,14 +27,11 @@ as quoted in ``shen2013/SOURCES.md`` of the project data; published figures,
 kept here as an independent reference.  The deviation column is the mean over
 the four images of ``|PSNR - reference PSNR|``.
 
-Run as ``python -m polcam.bench.sihr --data DIR [--methods yang10 shen13 ...]``
-(or ``polcam bench sihr --data DIR``).
+Run as ``polcam bench sihr --data DIR [--methods yang10 shen13 ...]``.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -45,6 +42,8 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from polcam.errors import FrameReadError, MethodError
+from polcam.separation import method_spec, separate
+from polcam.separation import methods as registered
 
 __all__ = [
     "IMAGES",
@@ -55,7 +54,6 @@ __all__ = [
     "default_methods",
     "format_table",
     "load_pair",
-    "main",
     "mean_abs_deviation",
     "psnr",
     "run",
@@ -205,8 +203,6 @@ def load_pair(data_dir: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 def default_methods() -> list[str]:
     """Registered methods of the reference table (canonical order), then the extras."""
-    from polcam.separation import methods as registered
-
     known = registered()
     return [m for m in known if m in REFERENCE_PSNR] + [m for m in EXTRA_METHODS if m in known]
 
@@ -241,8 +237,6 @@ def run(data_dir: Path, methods: list[str] | None = None) -> list[dict[str, Any]
     FrameReadError
         Missing or unreadable images.
     """
-    from polcam.separation import method_spec, separate
-
     names = default_methods() if methods is None else list(methods)
     for m in names:
         if method_spec(m).kind != "single":
@@ -323,28 +317,3 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
             f"{_f(r.get('reference_seconds'), 'g')} |"
         )
     return "\n".join(lines) + "\n"
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``python -m polcam.bench.sihr --data DIR [--methods ...]``."""
-    ap = argparse.ArgumentParser(prog="python -m polcam.bench.sihr", description=__doc__.splitlines()[0])
-    ap.add_argument("--data", required=True, type=Path,
-                    help="folder with animals.png, animals_gt.png, ... (or its parent holding shen2013/)")
-    ap.add_argument("--methods", nargs="+", default=None,
-                    help="method names (space or comma separated); default: every registered method "
-                         "of the reference table, plus yamamoto19")
-    args = ap.parse_args(argv)
-    methods = None
-    if args.methods:
-        methods = [m for item in args.methods for m in item.split(",") if m]
-    try:
-        rows = run(args.data, methods)
-    except (MethodError, FrameReadError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    sys.stdout.write(format_table(rows))
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

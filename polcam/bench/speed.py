@@ -57,7 +57,7 @@ import numpy as np
 from polcam.errors import MethodError
 from polcam.separation.tensor import AUTO_UNTILED_PIXELS
 
-__all__ = ["SpeedRow", "add_arguments", "format_markdown", "main", "measure", "run", "run_args"]
+__all__ = ["SpeedRow", "add_arguments", "format_markdown", "measure", "run", "run_args"]
 
 
 @dataclass
@@ -495,14 +495,3 @@ def _run_maps(a: argparse.Namespace) -> int:
             json.dump([asdict(r) for r in rows], fh, indent=1)
         print(f"wrote {a.json}")
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m polcam.bench.speed`` (the same as ``polcam bench speed``)."""
-    p = argparse.ArgumentParser(prog="python -m polcam.bench.speed", description=__doc__.splitlines()[0])
-    add_arguments(p)
-    return run_args(p.parse_args(argv))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -20,7 +20,6 @@ docs/methods/polarized-residual.md ("Stability") reports both for
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 from collections.abc import Sequence
@@ -30,7 +29,15 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["StabilityRow", "perturbed", "run", "format_markdown", "write_outputs", "add_arguments", "run_args"]
+from polcam.bench.quality import score
+from polcam.errors import MethodError
+from polcam.io.atomic import atomic_write
+from polcam.separation import estimated_illuminant, separate, takes_illuminant
+from polcam.separation._illuminant import SATURATED
+from polcam.synth.render import render
+from polcam.synth.scenes import scene
+
+__all__ = ["StabilityRow", "perturbed", "run", "format_markdown", "write_outputs"]
 
 
 @dataclass(frozen=True)
@@ -64,14 +71,12 @@ class StabilityRow:
 def perturbed(stack: np.ndarray, rel: float, seed: int) -> np.ndarray:
     """``stack`` with every sample below the white level multiplied by ``1 + N(0, rel)`` (float32, same shape).
 
-    The white level is the one the separation methods treat as clipped (``_illuminant._SATURATED``):
+    The white level is the one the separation methods treat as clipped (``_illuminant.SATURATED``):
     a clipped sample stays as it is, as a real one does.
     """
-    from polcam.separation._illuminant import _SATURATED
-
     s = np.asarray(stack, dtype=np.float32)
     noise = np.random.default_rng(seed).normal(0.0, rel, s.shape)
-    return np.where(s >= _SATURATED, s, s * (1.0 + noise)).astype(np.float32)
+    return np.where(s >= SATURATED, s, s * (1.0 + noise)).astype(np.float32)
 
 
 def _object(layer: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -106,13 +111,6 @@ def run(*, scenes: Sequence[str], methods: Sequence[str], size: int = 96, frames
     -------
     list of StabilityRow
     """
-    from polcam.bench.quality import score
-    from polcam.errors import MethodError
-    from polcam.separation import separate
-    from polcam.separation import estimated_illuminant, takes_illuminant
-    from polcam.synth.render import render
-    from polcam.synth.scenes import scene
-
     if frames < 2:
         raise MethodError(f"bench stability: frames={frames}: expected at least 2")
     if not rel > 0:
@@ -164,8 +162,6 @@ def format_markdown(rows: Sequence[StabilityRow]) -> str:
 
 def write_outputs(rows: Sequence[StabilityRow], out_dir: Path) -> list[Path]:
     """stability.csv and table.md in ``out_dir`` (written atomically)."""
-    from polcam.io.atomic import atomic_write
-
     out_dir.mkdir(parents=True, exist_ok=True)
     buf = io.StringIO()
     w = csv.writer(buf)
@@ -178,32 +174,3 @@ def write_outputs(rows: Sequence[StabilityRow], out_dir: Path) -> list[Path]:
     with atomic_write(out_dir / "table.md", "w") as fh:
         fh.write(format_markdown(rows) + "\n")
     return [out_dir / "stability.csv", out_dir / "table.md"]
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """The options of ``polcam bench stability``."""
-    p.add_argument("--set", default="all", choices=("paper", "stress", "all"), help="scene set (default all)")
-    p.add_argument("--scenes", nargs="+", help="only these scenes")
-    p.add_argument("--methods", nargs="+", default=["polarized-residual", "imin"],
-                   help="methods (default polarized-residual imin)")
-    p.add_argument("--size", type=int, default=96, help="scene side in pixels (default 96)")
-    p.add_argument("--frames", type=int, default=6, help="noise seeds per scene for the flicker (default 6)")
-    p.add_argument("--rel", type=float, default=3e-7,
-                   help="relative deviation of the continuity's perturbation (default 3e-7)")
-    p.add_argument("--hold-illuminant", action="store_true",
-                   help="pass the first frame's illuminant estimate to the later frames (as polcam capture does)")
-    p.add_argument("--mono", action="store_true", help="the scenes' luminance (mono), for methods that take it")
-    p.add_argument("--out", type=Path, default=Path("bench-output") / "stability",
-                   help="output folder (default bench-output/stability)")
-
-
-def run_args(a: argparse.Namespace) -> int:
-    """Run ``polcam bench stability`` with parsed options; print the table and write the files."""
-    from polcam.bench.quality import scene_set
-
-    rows = run(scenes=a.scenes or scene_set(a.set), methods=a.methods, size=a.size, frames=a.frames,
-               rel=a.rel, hold_illuminant=a.hold_illuminant, mono=a.mono)
-    print(format_markdown(rows))
-    for f in write_outputs(rows, a.out):
-        print(f"wrote {f}")
-    return 0

@@ -17,10 +17,10 @@ from frames and corrects frames with them:
   pixels, and the per-super-pixel polarimetric correction on the mosaic);
   :func:`correct_stack` is the per-pixel polarimetric correction of a
   demosaiced stack;
-- :mod:`polcam.calibration.frames`: calibration frames from disk or a camera
-  and their polarizer angles;
-- ``polcam calibrate dark|flat|polarizer`` (:mod:`polcam.commands.calibrate`) and
-  ``python -m polcam.calibration bench`` (:mod:`polcam.calibration.bench`).
+- the frames to calibrate from (disk or a camera, and their polarizer angles) are
+  taken by :mod:`polcam.acquisition.calibration_frames` for ``polcam calibrate
+  dark|flat|polarizer`` (:mod:`polcam.commands.calibrate`); the benchmark on a
+  synthetic sensor is ``polcam bench calibration`` (:mod:`polcam.bench.calibration`).
 
 A calibration refuses frames of another camera, layout, size or ROI (and a
 dark, frames of another exposure, gain or bit depth) with a

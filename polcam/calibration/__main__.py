@@ -1,7 +1,7 @@
-"""``python -m polcam.calibration bench|dark|flat|polarizer ...``.
+"""``python -m polcam.calibration bench|dark|flat|polarizer ...``: a shim onto the ``polcam`` command line.
 
-``bench`` runs :mod:`polcam.calibration.bench`; ``dark``, ``flat`` and
-``polarizer`` are ``polcam calibrate ...`` (:mod:`polcam.commands.calibrate`).
+``bench`` is ``polcam bench calibration``; ``dark``, ``flat`` and ``polarizer``
+are ``polcam calibrate ...`` (:mod:`polcam.commands.calibrate`).
 """
 
 from __future__ import annotations
@@ -9,17 +9,15 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
+from polcam.commands import main as polcam_main
+
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Dispatch to the benchmark or to the calibrate command."""
+    """Forward to ``polcam bench calibration`` or ``polcam calibrate``."""
     args = list(sys.argv[1:] if argv is None else argv)
     if args and args[0] == "bench":
-        from polcam.calibration.bench import main as bench_main
-
-        return bench_main(args[1:])
-    from polcam.commands.calibrate import main as cli_main
-
-    return cli_main(args)
+        return polcam_main(["bench", "calibration", *args[1:]])
+    return polcam_main(["calibrate", *args])
 
 
 if __name__ == "__main__":  # pragma: no cover

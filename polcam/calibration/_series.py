@@ -2,7 +2,7 @@
 
 Shared by the three fits of :mod:`polcam.calibration.estimate`: frames come as
 :class:`polcam.frame.Frame` objects or arrays of counts, each is checked against the first (size,
-layout, bit depth, camera, exposure, gain), and what the series showed (:class:`_Stats`) starts
+layout, bit depth, camera, exposure, gain), and what the series showed (:class:`Stats`) starts
 the resulting :class:`~polcam.calibration.store.Calibration`.
 """
 
@@ -16,11 +16,12 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from polcam.calibration.store import Calibration, CalibrationError, _now
+from polcam.calibration.store import Calibration, CalibrationError, utc_now
 from polcam.frame import Frame
 from polcam.mosaic import ANGLES, Layout, parse_layout
 
-__all__ = ["Frames", "FrameLike", "class_index", "robust_sigma"]
+__all__ = ["LOCAL", "MIN_SIGNAL", "FrameLike", "Frames", "Stats", "check_saturation", "class_index", "class_mean", "class_name",
+           "local_outliers", "mosaic_correction", "new_calibration", "read_frames", "robust_sigma", "stage_info"]
 
 FrameLike = Frame | np.ndarray
 Frames = Iterable[FrameLike] | np.ndarray
@@ -28,10 +29,10 @@ Frames = Iterable[FrameLike] | np.ndarray
 #: Standard deviation of a normal distribution over its median absolute deviation, 1 / Phi^-1(3/4).
 _MAD_TO_SIGMA = 1.482602218505602
 #: Side of the window of the local medians that dark and flat outliers are measured against, pixels.
-_LOCAL = 7
+LOCAL = 7
 #: Least median signal of the flat and polarizer frames, as a share of the range above the dark level: below it
 #: the fit's precision (shot and read noise over the signal) is too poor to calibrate.
-_MIN_SIGNAL = 0.02
+MIN_SIGNAL = 0.02
 
 
 def robust_sigma(x: np.ndarray) -> float:
@@ -57,14 +58,14 @@ def class_index(layout: Layout, height: int, width: int, *, angle: bool = True) 
     return layout.angle_index(height, width) + 4 * ch
 
 
-def _class_name(layout: Layout, k: int) -> str:
+def class_name(layout: Layout, k: int) -> str:
     angle = ANGLES[k % 4]
     if not layout.is_color:
         return f"{angle}"
     return f"{'RGB'[k // 4]}{angle}"
 
 
-def _class_mean(values: np.ndarray, classes: np.ndarray, good: np.ndarray) -> np.ndarray:
+def class_mean(values: np.ndarray, classes: np.ndarray, good: np.ndarray) -> np.ndarray:
     """Per-pixel mean of ``values`` over the good pixels of its class (1 where a class has none)."""
     n = int(classes.max()) + 1
     sums = np.bincount(classes[good], weights=values[good], minlength=n)
@@ -78,7 +79,7 @@ def _class_mean(values: np.ndarray, classes: np.ndarray, good: np.ndarray) -> np
 # ---------------------------------------------------------------------------
 
 @dataclass
-class _Stats:
+class Stats:
     """What a stage learnt about its frames while reading them."""
 
     layout: Layout
@@ -118,11 +119,11 @@ def _frame_name(frame: FrameLike, i: int) -> str:
     return f"frame {i}"
 
 
-def _read_frames(frames: Frames, *, layout: str | Layout | None, base: Calibration | None,
-                 what: str, check_settings: bool) -> Iterator[tuple[int, np.ndarray, Frame, _Stats]]:
+def read_frames(frames: Frames, *, layout: str | Layout | None, base: Calibration | None,
+                 what: str, check_settings: bool) -> Iterator[tuple[int, np.ndarray, Frame, Stats]]:
     """Yield ``(i, counts float64, frame, stats)`` after checking each frame against the first."""
     lay = None if layout is None else parse_layout(layout)
-    stats: _Stats | None = None
+    stats: Stats | None = None
     for i, item in enumerate(_as_frames(frames)):
         name = _frame_name(item, i)
         if isinstance(item, Frame):
@@ -157,7 +158,7 @@ def _read_frames(frames: Frames, *, layout: str | Layout | None, base: Calibrati
                                    f"least {2 * flay.period} for layout {flay}")
         meta = frame.metadata
         if stats is None:
-            stats = _Stats(layout=flay, shape=(h, w), bit_depth=int(frame.bit_depth),
+            stats = Stats(layout=flay, shape=(h, w), bit_depth=int(frame.bit_depth),
                            black_level=float(frame.black_level), white_level=float(frame.white_level),
                            camera_id=None if meta.get("camera_id") is None else str(meta["camera_id"]),
                            exposure_us=_num(meta.get("exposure_us")), gain_db=_num(meta.get("gain_db")),
@@ -196,7 +197,7 @@ def _same(name: str, key: str, got: Any, want: Any, ok: bool) -> None:
                                "every frame of one calibration must share it")
 
 
-def _check_saturation(stats: _Stats, what: str, limit: float = 1e-3) -> None:
+def check_saturation(stats: Stats, what: str, limit: float = 1e-3) -> None:
     total = stats.count * stats.shape[0] * stats.shape[1]
     if total and stats.saturated / total > limit:
         raise CalibrationError(
@@ -204,12 +205,12 @@ def _check_saturation(stats: _Stats, what: str, limit: float = 1e-3) -> None:
             f"{stats.white_level:g} (expected under {limit:.1%}); lower the exposure or the light")
 
 
-def _result(stats: _Stats, base: Calibration | None) -> Calibration:
+def new_calibration(stats: Stats, base: Calibration | None) -> Calibration:
     """A calibration carrying ``base``'s maps and the frames' metadata."""
     if base is not None:
         cal = base.copy()
         cal.source = None
-        cal.created = _now()
+        cal.created = utc_now()
         for key in ("camera_id", "roi", "reverse_x", "reverse_y"):
             if getattr(cal, key) is None and getattr(stats, key) is not None:
                 setattr(cal, key, getattr(stats, key))
@@ -222,7 +223,7 @@ def _result(stats: _Stats, base: Calibration | None) -> Calibration:
     )
 
 
-def _stage_info(stats: _Stats, **extra: Any) -> dict[str, Any]:
+def stage_info(stats: Stats, **extra: Any) -> dict[str, Any]:
     info: dict[str, Any] = {
         "frames": stats.count, "exposure_us": stats.exposure_us, "gain_db": stats.gain_db,
         "bit_depth": stats.bit_depth, "black_level": stats.black_level, "white_level": stats.white_level,
@@ -231,7 +232,7 @@ def _stage_info(stats: _Stats, **extra: Any) -> dict[str, Any]:
     return info
 
 
-def _mosaic_correction(base: Calibration | None, stats: _Stats) -> tuple[np.ndarray | float, np.ndarray | float]:
+def mosaic_correction(base: Calibration | None, stats: Stats) -> tuple[np.ndarray | float, np.ndarray | float]:
     """(offset, flat) to turn counts into dark-subtracted, flat-corrected signal."""
     offset: np.ndarray | float = stats.black_level
     flat: np.ndarray | float = 1.0
@@ -242,9 +243,9 @@ def _mosaic_correction(base: Calibration | None, stats: _Stats) -> tuple[np.ndar
     return offset, flat
 
 
-def _local_outliers(values: np.ndarray, sigma: float, *, floor: float) -> tuple[np.ndarray, np.ndarray, float]:
+def local_outliers(values: np.ndarray, sigma: float, *, floor: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Robust outliers of ``values`` against their local median: (mask, deviation, robust sigma)."""
-    local = ndimage.median_filter(values, size=_LOCAL, mode="reflect")
+    local = ndimage.median_filter(values, size=LOCAL, mode="reflect")
     dev = values - local
     s = max(robust_sigma(dev), floor)
     return np.abs(dev) > sigma * s, dev, s

@@ -45,6 +45,7 @@ from polcam.calibration.model import (
     measurement_rows,
 )
 from polcam.calibration.store import Calibration, CalibrationError
+from polcam.demosaicing import demosaic
 from polcam.errors import PolcamError
 from polcam.frame import Frame
 from polcam.mosaic import ANGLES, Layout
@@ -259,7 +260,6 @@ def _stack_model(calibration: Calibration, resolution: str) -> np.ndarray:
     cached = calibration._cache.get(key)
     if cached is not None:
         return cached
-    from polcam.demosaicing import demosaic
 
     gain, dia, theta = effective_model(calibration)
     rows = measurement_rows(gain, dia, theta).astype(np.float32)    # (H, W, 3)

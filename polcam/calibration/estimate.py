@@ -29,20 +29,20 @@ import numpy as np
 from scipy import ndimage
 
 from polcam.calibration._series import (
-    _LOCAL,
-    _MIN_SIGNAL,
+    LOCAL,
+    MIN_SIGNAL,
     Frames,
-    _check_saturation,
-    _class_mean,
-    _class_name,
-    _local_outliers,
-    _mosaic_correction,
-    _read_frames,
-    _result,
-    _stage_info,
-    _Stats,
+    Stats,
+    check_saturation,
     class_index,
+    class_mean,
+    class_name,
+    local_outliers,
+    mosaic_correction,
+    new_calibration,
+    read_frames,
     robust_sigma,
+    stage_info,
 )
 from polcam.calibration.polarizer import MAX_ANGLE_GAP_DEG, MIN_ANGLES, calibrate_polarizer, check_angles
 from polcam.calibration.store import Calibration, CalibrationError
@@ -83,7 +83,7 @@ _DEAD_PASSES = 2
 DARK_MAX_LEVEL = 0.05
 
 
-def _check_dark(counts: np.ndarray, stats: _Stats) -> None:
+def _check_dark(counts: np.ndarray, stats: Stats) -> None:
     """Refuse a dark frame whose mean level is more than DARK_MAX_LEVEL of the range above black."""
     mean = float(np.mean(counts))
     span = stats.white_level - stats.black_level
@@ -139,12 +139,12 @@ def calibrate_dark(frames: Frames, *, layout: str | Layout | None = None, base: 
     if not hot_sigma > 0:
         raise CalibrationError(f"hot_sigma {hot_sigma!r}: expected a positive number")
     stats, dark, noise = _dark_mean_and_noise(frames, layout=layout, base=base)
-    level_out, _dev, level_sigma = _local_outliers(dark, hot_sigma, floor=_FLOOR_DARK_LEVEL)
+    level_out, _dev, level_sigma = local_outliers(dark, hot_sigma, floor=_FLOOR_DARK_LEVEL)
     noise_med = float(np.median(noise))
     noise_sigma = max(robust_sigma(noise), _FLOOR_DARK_NOISE)
     noisy = noise > noise_med + hot_sigma * noise_sigma
     hot = level_out | noisy
-    cal = _result(stats, base)
+    cal = new_calibration(stats, base)
     cal.maps["dark"] = dark.astype(np.float32)
     cal.maps["dark_noise"] = noise.astype(np.float32)
     cal.maps["hot"] = hot
@@ -153,7 +153,7 @@ def calibrate_dark(frames: Frames, *, layout: str | Layout | None = None, base: 
     if cal.camera_id is None:
         cal.camera_id = camera_id
     good = ~hot
-    cal.stages["dark"] = _stage_info(stats, hot_sigma=hot_sigma, statistics={
+    cal.stages["dark"] = stage_info(stats, hot_sigma=hot_sigma, statistics={
         "median_counts": float(np.median(dark)),
         "spread_counts": robust_sigma(dark[good]),
         "noise_median_counts": noise_med,
@@ -167,16 +167,16 @@ def calibrate_dark(frames: Frames, *, layout: str | Layout | None = None, base: 
 
 
 def _dark_mean_and_noise(frames: Frames, *, layout: str | Layout | None,
-                         base: Calibration | None) -> tuple[_Stats, np.ndarray, np.ndarray]:
+                         base: Calibration | None) -> tuple[Stats, np.ndarray, np.ndarray]:
     """Per-pixel mean (counts) and temporal standard deviation of at least 2 dark frames, (H, W) float64.
 
     The sums are taken about the first frame's median, which keeps the variance exact.
     """
     total: np.ndarray | None = None
     total2: np.ndarray | None = None
-    stats: _Stats | None = None
+    stats: Stats | None = None
     shift = 0.0
-    for _, counts, _frame, stats in _read_frames(frames, layout=layout, base=base, what="dark",
+    for _, counts, _frame, stats in read_frames(frames, layout=layout, base=base, what="dark",
                                                  check_settings=False):
         if total is None:
             shift = float(np.median(counts))  # shifted sums keep the variance exact
@@ -241,25 +241,25 @@ def calibrate_flat(frames: Frames, *, layout: str | Layout | None = None, base: 
     if not dead_sigma > 0:
         raise CalibrationError(f"dead_sigma {dead_sigma!r}: expected a positive number")
     total: np.ndarray | None = None
-    stats: _Stats | None = None
-    for _, counts, _frame, stats in _read_frames(frames, layout=layout, base=base, what="flat",
+    stats: Stats | None = None
+    for _, counts, _frame, stats in read_frames(frames, layout=layout, base=base, what="flat",
                                                  check_settings=check_settings):
         total = counts.copy() if total is None else total + counts
     assert stats is not None and total is not None
-    _check_saturation(stats, "flat")
-    offset, _ = _mosaic_correction(base, stats)
+    check_saturation(stats, "flat")
+    offset, _ = mosaic_correction(base, stats)
     signal = total / stats.count - offset
     span = stats.white_level - float(np.median(offset))
     level = float(np.median(signal))
-    if not level > _MIN_SIGNAL * span:
+    if not level > MIN_SIGNAL * span:
         raise CalibrationError(
             f"flat frames too dark: median signal {level:.4g} counts above the dark, expected at least "
-            f"2% of the range ({_MIN_SIGNAL * span:.4g}); raise the exposure or the light")
+            f"2% of the range ({MIN_SIGNAL * span:.4g}); raise the exposure or the light")
     h, w = stats.shape
     classes = class_index(stats.layout, h, w)
     hot = base.maps["hot"] if base is not None and base.has("dark") else np.zeros((h, w), dtype=bool)
     flat, dead, good = _flat_and_dead(signal, classes, hot, dead_sigma)
-    cal = _result(stats, base)
+    cal = new_calibration(stats, base)
     if cal.camera_id is None:
         cal.camera_id = camera_id
     cal.maps["flat"] = flat.astype(np.float32)
@@ -267,8 +267,8 @@ def calibrate_flat(frames: Frames, *, layout: str | Layout | None = None, base: 
     class_means = {}
     for k in np.unique(classes):
         sel = (classes == k) & good
-        class_means[_class_name(stats.layout, int(k))] = float(signal[sel].mean()) if sel.any() else None
-    cal.stages["flat"] = _stage_info(stats, dead_sigma=dead_sigma, dark_from_base=bool(base and base.has("dark")),
+        class_means[class_name(stats.layout, int(k))] = float(signal[sel].mean()) if sel.any() else None
+    cal.stages["flat"] = stage_info(stats, dead_sigma=dead_sigma, dark_from_base=bool(base and base.has("dark")),
                                      statistics={
                                          "median_signal_counts": level,
                                          "gain_spread": float(np.std(flat[good])),
@@ -288,12 +288,12 @@ def _flat_and_dead(signal: np.ndarray, classes: np.ndarray, hot: np.ndarray,
     pixels the class means were taken over, each (H, W).
     """
     good = ~hot & (signal > 0)
-    flat = signal / _class_mean(signal, classes, good)
+    flat = signal / class_mean(signal, classes, good)
     dead = np.zeros(signal.shape, dtype=bool)
     for _ in range(_DEAD_PASSES):
-        out, _dev, sig = _local_outliers(flat, dead_sigma, floor=_FLOOR_FLAT)
-        low = flat < _DEAD_GAIN * ndimage.median_filter(flat, size=_LOCAL, mode="reflect")
+        out, _dev, sig = local_outliers(flat, dead_sigma, floor=_FLOOR_FLAT)
+        low = flat < _DEAD_GAIN * ndimage.median_filter(flat, size=LOCAL, mode="reflect")
         dead = (out | low) & ~hot
         good = ~hot & ~dead & (signal > 0)
-        flat = signal / _class_mean(signal, classes, good)
+        flat = signal / class_mean(signal, classes, good)
     return np.where(np.isfinite(flat) & (flat > 0), flat, 1.0), dead, good

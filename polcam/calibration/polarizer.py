@@ -26,18 +26,18 @@ from typing import Any
 import numpy as np
 
 from polcam.calibration._series import (
-    _MIN_SIGNAL,
+    MIN_SIGNAL,
     Frames,
-    _check_saturation,
-    _class_mean,
-    _class_name,
-    _mosaic_correction,
-    _read_frames,
-    _result,
-    _stage_info,
-    _Stats,
+    Stats,
+    check_saturation,
     class_index,
+    class_mean,
+    class_name,
+    mosaic_correction,
+    new_calibration,
+    read_frames,
     robust_sigma,
+    stage_info,
 )
 from polcam.calibration.model import model_from_coefficients, nominal_orientation
 from polcam.calibration.store import Calibration, CalibrationError
@@ -179,7 +179,7 @@ def calibrate_polarizer(frames: Frames, angles_deg: Sequence[float], *, layout: 
     _check_polarizer_signal(c0, dia, good, stats.white_level - float(np.median(offset)))
     classes = class_index(lay, h, w)
     theta, delta, common, offsets = _orientation(theta, lay, classes, good, zero)
-    gain = scale / _class_mean(scale, class_index(lay, h, w, angle=False), good)
+    gain = scale / class_mean(scale, class_index(lay, h, w, angle=False), good)
     outlier = _polarizer_outliers((gain, dia, delta, resid), classes, good, known_bad, outlier_sigma)
     gain = np.where(np.isfinite(gain), gain, 0.0)
     maps = {"gain": gain.astype(np.float32), "diattenuation": dia.astype(np.float32),
@@ -190,16 +190,16 @@ def calibrate_polarizer(frames: Frames, angles_deg: Sequence[float], *, layout: 
         outlier_sigma=outlier_sigma, statistics=_polarizer_statistics(gain, dia, delta, resid, outlier, offsets))
 
 
-def _polarizer_calibration(stats: _Stats, base: Calibration | None, camera_id: str | None, angles: np.ndarray,
+def _polarizer_calibration(stats: Stats, base: Calibration | None, camera_id: str | None, angles: np.ndarray,
                            maps: dict[str, np.ndarray], **stage: Any) -> Calibration:
     """The calibration: ``base``'s maps and the frames' metadata, the polarizer ``maps`` and its stage record."""
-    cal = _result(stats, base)
+    cal = new_calibration(stats, base)
     if cal.camera_id is None:
         cal.camera_id = camera_id
     cal.maps.update(maps)
     distinct = np.unique(np.round(np.mod(angles, 180.0), 2) % 180.0)
     statistics = stage.pop("statistics")
-    cal.stages["polarizer"] = _stage_info(
+    cal.stages["polarizer"] = stage_info(
         stats, angles_deg=[float(a) for a in distinct], **stage,
         after_dark=bool(base and base.has("dark")), after_flat=bool(base and base.has("flat")),
         statistics=statistics)
@@ -224,7 +224,7 @@ def _checked_polarizer_input(angles_deg: Sequence[float], *, zero: str, source_d
 
 
 def _fit_sinusoids(frames: Frames, angles: np.ndarray, *, layout: str | Layout | None, base: Calibration | None,
-                   check_settings: bool) -> tuple[_Stats, np.ndarray, np.ndarray, np.ndarray | float]:
+                   check_settings: bool) -> tuple[Stats, np.ndarray, np.ndarray, np.ndarray | float]:
     """Per pixel, the least-squares fit ``I(a) = c0 + c1 cos 2a + c2 sin 2a`` to the corrected frames.
 
     The normal equations are accumulated frame by frame (memory does not grow with the number of
@@ -238,14 +238,14 @@ def _fit_sinusoids(frames: Frames, angles: np.ndarray, *, layout: str | Layout |
     yy: np.ndarray | None = None
     offset: np.ndarray | float = 0.0
     flat: np.ndarray | float = 1.0
-    stats: _Stats | None = None
-    for i, counts, _frame, stats in _read_frames(frames, layout=layout, base=base, what="polarizer",
+    stats: Stats | None = None
+    for i, counts, _frame, stats in read_frames(frames, layout=layout, base=base, what="polarizer",
                                                  check_settings=check_settings):
         if i >= angles.size:
             raise CalibrationError(f"more frames than polarizer angles ({angles.size} given): "
                                    "expected one angle per frame")
         if aty is None:
-            offset, flat = _mosaic_correction(base, stats)
+            offset, flat = mosaic_correction(base, stats)
             aty = np.zeros((3,) + counts.shape)
             yy = np.zeros(counts.shape)
         y = (counts - offset) / flat
@@ -259,7 +259,7 @@ def _fit_sinusoids(frames: Frames, angles: np.ndarray, *, layout: str | Layout |
     if stats.count != angles.size:
         raise CalibrationError(f"{stats.count} frames but {angles.size} polarizer angles: "
                                "expected one angle per frame")
-    _check_saturation(stats, "polarizer")
+    check_saturation(stats, "polarizer")
     h, w = stats.shape
     coef = np.linalg.solve(ata, aty.reshape(3, -1)).reshape(3, h, w)
     n = stats.count
@@ -273,10 +273,10 @@ def _fit_sinusoids(frames: Frames, angles: np.ndarray, *, layout: str | Layout |
 
 def _check_polarizer_signal(c0: np.ndarray, dia: np.ndarray, good: np.ndarray, span: float) -> None:
     """Refuse polarizer frames too dark for the fit, or light barely polarized (median D of good pixels)."""
-    if not float(np.median(c0)) > _MIN_SIGNAL * span:
+    if not float(np.median(c0)) > MIN_SIGNAL * span:
         raise CalibrationError(
             f"polarizer frames too dark: median signal {float(np.median(c0)):.4g} counts, expected at "
-            f"least 2% of the range ({_MIN_SIGNAL * span:.4g})")
+            f"least 2% of the range ({MIN_SIGNAL * span:.4g})")
     med_d = float(np.median(dia[good])) if good.any() else 0.0
     if med_d < _MIN_MEDIAN_D:
         raise CalibrationError(
@@ -320,10 +320,10 @@ def _class_offsets(delta: np.ndarray, classes: np.ndarray, good: np.ndarray, lay
     for k in np.unique(classes):
         sel = (classes == k) & good
         med = float(np.median(delta[sel])) if sel.any() else 0.0
-        offsets[_class_name(lay, int(k))] = med
+        offsets[class_name(lay, int(k))] = med
         if abs(med) > MAX_CLASS_OFFSET_DEG:
             raise CalibrationError(
-                f"pixels of the {_class_name(lay, int(k))}-degree class face {ANGLES[int(k) % 4] + med:.1f} "
+                f"pixels of the {class_name(lay, int(k))}-degree class face {ANGLES[int(k) % 4] + med:.1f} "
                 f"degrees (median), {med:+.1f} from nominal: expected within {MAX_CLASS_OFFSET_DEG:g}. "
                 f"Are the polarizer angles measured in the opposite sense, offset (try zero='sensor'), "
                 f"or is the layout ({lay}) wrong?")

@@ -33,8 +33,10 @@ from typing import Any
 
 import numpy as np
 
+from polcam._version import __version__
 from polcam.errors import LayoutError, PolcamError
 from polcam.frame import Frame
+from polcam.io.atomic import atomic_write
 from polcam.mosaic import Layout, parse_layout
 
 __all__ = [
@@ -46,6 +48,7 @@ __all__ = [
     "CalibrationError",
     "load_calibration",
     "save_calibration",
+    "utc_now",
 ]
 
 #: Value of ``meta["format"]`` in every calibration file.
@@ -82,17 +85,9 @@ class CalibrationError(PolcamError):
     """A calibration that cannot be made, read or applied (bad frames, wrong file, mismatched camera)."""
 
 
-def _now() -> str:
+def utc_now() -> str:
+    """The time now in UTC, ISO 8601 to the second (a calibration's ``created``)."""
     return _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
-
-
-def _version() -> str:
-    try:
-        from polcam import __version__
-
-        return str(__version__)
-    except Exception:  # pragma: no cover - partial trees
-        return "unknown"
 
 
 @dataclass
@@ -135,8 +130,8 @@ class Calibration:
     reverse_y: bool | None = None
     maps: dict[str, np.ndarray] = field(default_factory=dict)
     stages: dict[str, dict[str, Any]] = field(default_factory=dict)
-    created: str = field(default_factory=_now)
-    polcam_version: str = field(default_factory=_version)
+    created: str = field(default_factory=utc_now)
+    polcam_version: str = __version__
     source: str | None = None
     _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
@@ -352,8 +347,6 @@ def save_calibration(path: str | PathLike[str], calibration: Calibration) -> Pat
     CalibrationError
         A calibration without any map.
     """
-    from polcam.io.atomic import atomic_write
-
     target = Path(path)
     if not calibration.maps:
         raise CalibrationError("nothing to save: the calibration holds no map", path=target)

@@ -25,8 +25,8 @@ from polcam.camera.base import (
 from polcam.camera.aravis_lib import (
     INSTALL_HINT,
     DeviceInfo,
-    _gerror_message,
-    _is_busy,
+    gerror_message,
+    is_busy,
     aravis_available,
     list_devices,
     load_aravis,
@@ -200,13 +200,13 @@ class AravisCamera(Camera):
         try:
             cam = arv.Camera.new(info.id)
         except GLib.Error as exc:
-            msg = _gerror_message(exc)
+            msg = gerror_message(exc)
             if "not found" in msg.lower():
                 raise CameraNotFoundError(
                     f"no camera with id {info.id!r} ({msg}); list them with `polcam devices` "
                     "(`polcam devices --fake` adds Aravis' simulated camera Fake_1)"
                 ) from None
-            if _is_busy(msg):
+            if is_busy(msg):
                 raise CameraBusyError(
                     f"camera {info.id} is busy: another program controls it ({msg}); close that "
                     "program (arv-viewer, a vendor SDK, another polcam) and try again"
@@ -243,7 +243,7 @@ class AravisCamera(Camera):
         except GLib.Error as exc:
             raise CameraSettingError(
                 f"camera {self.camera_id}: cannot set the GigE packet size {self.packet_size!r}: "
-                f"{_gerror_message(exc)}"
+                f"{gerror_message(exc)}"
             ) from None
 
     def _on_control_lost(self, *_args: Any) -> None:
@@ -400,7 +400,7 @@ class AravisCamera(Camera):
                 fn(*args)
             except GLib.Error as exc:
                 raise CameraSettingError(
-                    f"camera {self.camera_id} refused {what} = {value!r}: {_gerror_message(exc)}"
+                    f"camera {self.camera_id} refused {what} = {value!r}: {gerror_message(exc)}"
                 ) from None
 
         if s.pixel_format is not None:
@@ -535,7 +535,7 @@ class AravisCamera(Camera):
             stream = cam.create_stream(None, None)
         except GLib.Error as exc:
             raise CameraUnavailableError(
-                f"camera {self.camera_id}: cannot open the stream: {_gerror_message(exc)}"
+                f"camera {self.camera_id}: cannot open the stream: {gerror_message(exc)}"
             ) from None
         if cam.is_gv_device():
             if self.socket_buffer_bytes:
@@ -558,7 +558,7 @@ class AravisCamera(Camera):
             self._stop_event.set()
             self._thread.join()
             raise CameraUnavailableError(
-                f"camera {self.camera_id}: cannot start acquisition: {_gerror_message(exc)}"
+                f"camera {self.camera_id}: cannot start acquisition: {gerror_message(exc)}"
             ) from None
 
     def _acquire(self) -> None:
@@ -620,7 +620,7 @@ class AravisCamera(Camera):
         try:
             self._dev.read_register(0x0A00)
         except GLib.Error as exc:
-            self._connection_lost(f"no answer to a register read ({_gerror_message(exc)})")
+            self._connection_lost(f"no answer to a register read ({gerror_message(exc)})")
 
     def _make_frame(self, data: bytes, w: int, h: int, code: int, fid: int, ts: int, sys_ts: int,
                     x: int, y: int, fmt: PixelFormat) -> CapturedFrame | None:
@@ -658,7 +658,7 @@ class AravisCamera(Camera):
             try:
                 self._cam.stop_acquisition()
             except GLib.Error as exc:  # it went away just now
-                self._connection_lost(f"no answer to AcquisitionStop ({_gerror_message(exc)})")
+                self._connection_lost(f"no answer to AcquisitionStop ({gerror_message(exc)})")
         self._final_stream_stats = self._backend_stats()
         held = [self._stream] if self._stream is not None else []
         self._stream = None

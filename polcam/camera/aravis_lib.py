@@ -14,7 +14,7 @@ from typing import Any
 
 from polcam.errors import CameraUnavailableError
 
-__all__ = ["DeviceInfo", "INSTALL_HINT", "aravis_available", "list_devices", "load_aravis"]
+__all__ = ["DeviceInfo", "INSTALL_HINT", "aravis_available", "gerror_message", "is_busy", "list_devices", "load_aravis"]
 
 INSTALL_HINT = (
     "install the camera stack with `sudo drivers/install.sh` (Debian packages gir1.2-aravis-0.8, "
@@ -107,10 +107,12 @@ def list_devices(*, fake: bool = False) -> list[DeviceInfo]:
     return out
 
 
-def _gerror_message(exc: BaseException) -> str:
+def gerror_message(exc: BaseException) -> str:
+    """The message of a GLib error (or of any exception)."""
     return str(getattr(exc, "message", None) or exc)
 
 
-def _is_busy(message: str) -> bool:
+def is_busy(message: str) -> bool:
+    """Whether an Aravis error message says another process holds the camera."""
     m = message.lower()
     return any(w in m for w in ("control access", "busy", "in use", "access denied", "privilege"))

@@ -25,6 +25,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from polcam.camera.aravis import list_devices, load_aravis
 from polcam.errors import CameraUnavailableError
 
 __all__ = ["EMULATOR", "EmulatorId", "emulator_available", "gige_emulator"]
@@ -98,8 +99,6 @@ def gige_emulator(*, serial: str | None = None, lost_per_thousand: int = 0,
     CameraUnavailableError
         No emulator executable, Aravis missing, or the emulator did not show up.
     """
-    from polcam.camera.aravis import list_devices, load_aravis
-
     exe = shutil.which(EMULATOR)
     if exe is None:
         raise CameraUnavailableError(

@@ -23,6 +23,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from polcam.camera.base import CameraNotFoundError
+
 if TYPE_CHECKING:
     from polcam.camera.base import Camera
 
@@ -165,8 +167,6 @@ def backend_for(device: str) -> tuple[Backend, str]:
     CameraNotFoundError
         An empty id, or no backend for it.
     """
-    from polcam.camera.base import CameraNotFoundError
-
     dev = str(device).strip()
     if not dev:
         raise CameraNotFoundError(

@@ -35,6 +35,8 @@ from polcam.camera.base import Camera, CameraNotFoundError, CameraSettingError, 
 from polcam.camera.registry import CameraFlag, register_backend
 from polcam.errors import PixelFormatError, PolcamError
 from polcam.frame import Frame
+from polcam.io import RAW_EXTENSIONS, read_frame
+from polcam.io.listing import raw_files_in
 from polcam.mosaic import Layout, parse_layout
 
 __all__ = ["ReplayCamera", "as_recorded"]
@@ -118,9 +120,6 @@ class ReplayCamera(Camera):
         FrameReadError, PixelFormatError
             The first frame cannot be read.
         """
-        from polcam.io import RAW_EXTENSIONS, read_frame
-        from polcam.io.listing import raw_files_in
-
         if not self.folder.is_dir():
             raise CameraNotFoundError(
                 f"replay folder {str(self.folder)!r} does not exist (replay:DIR plays a folder of raw frames)"
@@ -265,8 +264,6 @@ class ReplayCamera(Camera):
         self._finished.set()
 
     def _frame(self, path: Path, seq: int) -> CapturedFrame:
-        from polcam.io import read_frame
-
         fr = read_frame(path, layout=self._layout_override)
         meta = dict(fr.metadata)
         mosaic = fr.mosaic

@@ -14,28 +14,17 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from polcam import __version__
-from polcam.commands._args import CommandParser, run_command
+from polcam import DEMOSAIC_METHODS
+from polcam._version import __version__
+from polcam.commands import bench, calibrate, capture, demo, devices, formats, process, render, stokes, view
+from polcam.commands._args import CommandParser, parse_option, run_command
+from polcam.parallel import commands_own_main
 
-__all__ = ["build_parser", "main", "reference_markdown", "run_command"]
+__all__ = ["build_parser", "main", "parse_option", "reference_markdown", "run_command"]
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``polcam`` parser with every command."""
-    from polcam import DEMOSAIC_METHODS
-    from polcam.commands import (
-        bench,
-        calibrate,
-        capture,
-        demo,
-        devices,
-        formats,
-        process,
-        render,
-        stokes,
-        view,
-    )
-
     p = CommandParser(
         prog="polcam",
         description="Polarization cameras: raw frames to polarization stacks, Stokes maps and "
@@ -87,8 +76,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     The command owns ``__main__``, so the library's parallel work may run in
     worker processes (:func:`polcam.parallel.commands_own_main`).
     """
-    from polcam.parallel import commands_own_main
-
     with commands_own_main():
         return run_command(build_parser().parse_args(argv))
 

@@ -6,7 +6,7 @@ options of ``polcam capture``); the frames stream into
 :func:`~polcam.calibration.calibrate_dark` /
 :func:`~polcam.calibration.calibrate_flat` /
 :func:`~polcam.calibration.calibrate_polarizer` one at a time
-(:mod:`polcam.calibration.frames` says how live frames are taken).
+(:mod:`polcam.acquisition.calibration_frames` says how live frames are taken).
 """
 
 from __future__ import annotations
@@ -18,8 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from polcam.calibration.estimate import calibrate_dark, calibrate_flat, calibrate_polarizer, check_angles
-from polcam.calibration.frames import (
+from polcam.acquisition.calibration_frames import (
     ANGLE_KEY,
     FrameGrabber,
     angle_of,
@@ -29,9 +28,10 @@ from polcam.calibration.frames import (
     plain,
     read_frames,
 )
+from polcam.calibration.estimate import calibrate_dark, calibrate_flat, calibrate_polarizer, check_angles
 from polcam.calibration.store import Calibration, CalibrationError, load_calibration, save_calibration
 from polcam.camera import open_camera
-from polcam.commands._args import CAMERA_SETTINGS, add_camera_arguments, camera_options, configure_camera
+from polcam.commands._args import CAMERA_SETTINGS, add_camera_arguments, camera_options, configure_camera, run_command
 
 __all__ = ["add_calibrate_parser", "cmd_calibrate", "main"]
 
@@ -243,6 +243,5 @@ def main(argv: Sequence[str] | None = None) -> int:
         args_list = ["calibrate", *args_list]
     args = parser.parse_args(args_list)
     del cal
-    from polcam.commands._args import run_command
 
     return run_command(args)

@@ -28,9 +28,18 @@ from typing import Any
 
 from polcam.acquisition import SAVE_FORMATS, StopRequest, run_capture
 from polcam.acquisition.run import ON_WRITE_ERROR
+from polcam.acquisition.saving import check_writable
+from polcam.calibration import load_calibration
 from polcam.camera import open_camera
 from polcam.camera.base import CameraSettingError
-from polcam.commands._args import add_camera_arguments, camera_options, configure_camera, parse_options
+from polcam.commands._args import (
+    CommandParser,
+    add_camera_arguments,
+    camera_options,
+    configure_camera,
+    parse_options,
+    run_command,
+)
 
 __all__ = ["EXIT_DISCONNECTED", "EXIT_WRITE_FAILED", "add_capture_parser", "cmd_capture", "main"]
 
@@ -167,12 +176,10 @@ def cmd_capture(args: argparse.Namespace) -> int:
 
     calibration = None
     if args.calibration is not None:  # loaded once, before the camera is touched
-        from polcam.calibration import load_calibration
 
         calibration = load_calibration(args.calibration)
     created = out is not None and not out.exists()
     if out is not None:  # before the camera is touched: a folder that cannot take frames is refused now
-        from polcam.acquisition.saving import check_writable
 
         check_writable(out)
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -222,12 +229,9 @@ def cmd_capture(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m polcam.capture ...``: the capture command on its own."""
-    from polcam.commands._args import CommandParser
-
     parser = CommandParser(prog="polcam")
     sub = parser.add_subparsers(dest="command", required=True)
     add_capture_parser(sub)
     args = parser.parse_args(["capture", *(sys.argv[1:] if argv is None else argv)])
-    from polcam.commands._args import run_command
 
     return run_command(args)

@@ -8,8 +8,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from polcam import __version__
-from polcam.commands._args import default_methods_text
+from polcam import DEMOSAIC_METHODS
+from polcam._version import __version__
+from polcam.commands import capture, process
+from polcam.commands._args import default_methods_text, run_command
+from polcam.commands.stokes import run_stokes
+from polcam.io.listing import raw_files_in
 
 __all__ = ["FIXTURES", "add_parser", "cmd_demo"]
 
@@ -22,8 +26,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if not src.is_dir():
         print(f"error: fixture folder {src} not found (give --input DIR)", file=sys.stderr)
         return 2
-    from polcam.commands.stokes import run_stokes
-    from polcam.io.listing import raw_files_in
 
     out: Path = args.out
     demosaic = args.demosaic  # None: the demosaicing registry's default for each frame's layout
@@ -59,10 +61,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def _run(command: str, argv: list[str]) -> int:
     """Run ``polcam COMMAND ARGV`` (capture or process) as the command line would, in this process."""
-    from polcam import DEMOSAIC_METHODS
-    from polcam.commands import capture, process
-    from polcam.commands._args import run_command
-
     parser = argparse.ArgumentParser(prog="polcam")
     sub = parser.add_subparsers(dest="command", required=True)
     if command == "capture":

@@ -6,12 +6,12 @@ import argparse
 import json
 from typing import Any
 
+from polcam.camera import list_devices
+
 __all__ = ["add_parser", "cmd_devices"]
 
 
 def cmd_devices(args: argparse.Namespace) -> int:
-    from polcam.camera import list_devices
-
     devices = list_devices(fake=args.fake)
     if args.json:
         print(json.dumps([d.as_dict() for d in devices], indent=2))

@@ -5,15 +5,15 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from polcam.errors import PixelFormatError
+from polcam.mosaic import LAYOUTS, PIXEL_FORMATS, VENDOR_ALIASES, vendor_key
+
 __all__ = ["add_parser", "cmd_formats"]
 
 
 def cmd_formats(args: argparse.Namespace) -> int:
-    from polcam.errors import PixelFormatError
-    from polcam.mosaic import _VENDOR_ALIASES, LAYOUTS, PIXEL_FORMATS, _vendor_key
-
-    key = _vendor_key(args.vendor)
-    known = sorted({v for v, _ in PIXEL_FORMATS if v != "*"} | set(_VENDOR_ALIASES.values()))
+    key = vendor_key(args.vendor)
+    known = sorted({v for v, _ in PIXEL_FORMATS if v != "*"} | set(VENDOR_ALIASES.values()))
     if key is not None and key not in known:
         raise PixelFormatError(f"--vendor {args.vendor!r}: unknown vendor; known vendors: {', '.join(known)} "
                                "(or leave --vendor out for every format)")

@@ -6,13 +6,13 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from polcam.synth.render import render, write_scene
+from polcam.synth.scenes import scene, scene_names
+
 __all__ = ["add_parser", "cmd_render"]
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from polcam.synth.render import render, write_scene
-    from polcam.synth.scenes import scene, scene_names
-
     names = args.scenes or list(scene_names())
     for name in names:
         r = render(scene(name), size=args.size, seed=args.seed)

@@ -13,10 +13,16 @@ from typing import Any
 
 import numpy as np
 
-from polcam import __version__
+from polcam._version import __version__
 from polcam.commands._args import add_max_pixels_argument
+from polcam.commands._checks import check_run_options
 from polcam.errors import PolcamError
-from polcam.sinks.files import FORMATS
+from polcam.io import read_frame
+from polcam.io.atomic import atomic_write
+from polcam.io.listing import list_raw_files
+from polcam.demosaicing import resolve_demosaic
+from polcam.pipeline import PRODUCTS, require_layout, run_frame
+from polcam.sinks.files import FORMATS, write_meta, write_products
 
 __all__ = ["LIT_DOLP_BIAS", "add_parser", "cmd_stokes", "dolp_of_lit", "lit_floor", "run_stokes"]
 
@@ -71,12 +77,6 @@ def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, demo
     ``failed``: input and error of each bad frame, ``frames``: each frame's meta).  ``demosaic``:
     the demosaicing method (None: the registry's default for each frame's layout).
     """
-    from polcam.io import read_frame
-    from polcam.io.atomic import atomic_write
-    from polcam.demosaicing import resolve_demosaic
-    from polcam.pipeline import PRODUCTS, require_layout, run_frame
-    from polcam.sinks.files import write_meta, write_products
-
     out_dir.mkdir(parents=True, exist_ok=True)
     done: list[dict[str, Any]] = []
     failed: list[dict[str, str]] = []
@@ -115,9 +115,6 @@ def run_stokes(files: Sequence[Path], out_dir: Path, *, layout: str | None, demo
 
 def cmd_stokes(args: argparse.Namespace) -> int:
     """Run ``polcam stokes``; returns the exit status."""
-    from polcam.commands._checks import check_run_options
-    from polcam.io.listing import list_raw_files
-
     files = list_raw_files(args.inputs, recursive=args.recursive)
     if not files:
         print(f"error: no raw frames found in {', '.join(map(str, args.inputs))}", file=sys.stderr)

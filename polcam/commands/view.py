@@ -7,6 +7,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from polcam.viewer import view
+
 __all__ = ["add_parser", "cmd_view"]
 
 
@@ -34,7 +36,5 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def cmd_view(args: argparse.Namespace) -> int:
     """Run a parsed ``polcam view``."""
-    from polcam.viewer import view
-
     return view(args.path, web=args.web, port=args.port, bind=args.bind, memory_limit=args.memory_limit,
                 out=lambda text: print(text, flush=True))

@@ -8,10 +8,10 @@ method it runs the registry's best one for the layout (:func:`default_method`).
 of a given layout samples it), used by the benchmarks and the tests.
 
 Every module in this package whose name does not start with an underscore is a
-method module (except :mod:`~polcam.demosaicing.training` and
-:mod:`~polcam.demosaicing.validation`, the ``lmmse`` training and model
-selection); importing the package imports them all, and each registers itself with
-:func:`register`.  docs/methods/demosaicing.md describes the methods.
+method module; importing the package imports them all, and each registers itself with
+:func:`register`.  The ``lmmse`` training and model selection are tooling, beside
+the benchmarks (:mod:`polcam.bench.lmmse_training`, :mod:`polcam.bench.demosaic_validation`).
+docs/methods/demosaicing.md describes the methods.
 """
 
 from __future__ import annotations

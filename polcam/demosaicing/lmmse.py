@@ -15,9 +15,9 @@ As implemented here (docs/methods/demosaic-lmmse.md has the details):
 * The raw is cut into 4x4 blocks; the 4 x 4 x 4 angles (x 3 colours) outputs of a
   block are one linear map of the 12 x 12 raw samples of the block and its eight
   neighbours (144 inputs): one matrix product per frame.
-* The filters are fit by constrained least squares (:mod:`polcam.demosaicing.training`)
+* The filters are fit by constrained least squares (:mod:`polcam.bench.lmmse_training`)
   on scenes polcam renders itself and on public-domain / CC0 photographs with simulated
-  polarization (:mod:`polcam.demosaicing.photos`), so the weights can ship.
+  polarization (:mod:`polcam.synth.photos`), so the weights can ship.
   Constraints: a pixel's own sample is kept exactly; the weights each output puts on
   each (angle, colour) lattice sum to 1 on its own lattice and 0 on the others, so a
   uniformly polarized, uniformly coloured scene comes back exactly whatever the
@@ -82,7 +82,7 @@ CANONICAL: dict[tuple[bool, str], str] = {
     (False, "beside"): "mono:0,90,45,135",
     (True, "beside"): "color:0,90,45,135:RGGB",
 }
-#: The shipped weights (made by ``python -m polcam.demosaicing.training``).
+#: The shipped weights (made by ``polcam bench train-lmmse``).
 WEIGHTS_FILE = Path(__file__).with_name("lmmse_weights.npz")
 
 _ROWS_PER_JOB = 32  # block rows per strip
@@ -94,10 +94,10 @@ def weight_key(color: bool, geometry: str) -> str:
 
 
 @lru_cache(maxsize=1)
-def _weights() -> dict[str, np.ndarray]:
+def shipped_weights() -> dict[str, np.ndarray]:
     if not WEIGHTS_FILE.is_file():  # pragma: no cover - a broken install
         raise MethodError(f"lmmse weights {WEIGHTS_FILE} are missing: reinstall polcam or run "
-                          "python -m polcam.demosaicing.training")
+                          "polcam bench train-lmmse")
     with np.load(WEIGHTS_FILE) as data:
         return {k: np.ascontiguousarray(data[k], dtype=np.float32) for k in data.files if k != "info"}
 
@@ -413,14 +413,14 @@ def lmmse(img: np.ndarray, lay: Layout) -> np.ndarray:
     numpy.ndarray
         float32 (4, H, W) for a mono layout, (4, H, W, 3) for a colour one.
     """
-    return run_lmmse(img, lay, weights=_weights(), params=LMMSE_PARAMS)
+    return run_lmmse(img, lay, weights=shipped_weights(), params=LMMSE_PARAMS)
 
 
 def run_lmmse(img: np.ndarray, lay: Layout, *, weights: dict[str, np.ndarray],
               params: dict[str, float | str]) -> np.ndarray:
     """:func:`lmmse` with given banks (:func:`weight_key` -> (144, outputs) float32) and
     second-stage parameters (the keys of :data:`LMMSE_PARAMS`): what the model selection of
-    :mod:`polcam.demosaicing.validation` runs on its validation scenes.
+    :mod:`polcam.bench.demosaic_validation` runs on its validation scenes.
 
     Returns
     -------

@@ -22,7 +22,7 @@ failures of ``eari`` that matter are the large ones (colour edges).  So:
 (both estimates are functions of it).  Both methods keep the measured samples
 and recover uniform and affine scenes exactly, so the blend does too.  ``tau``
 and ``sigma`` were chosen on polcam's validation set
-(:mod:`polcam.demosaicing.validation`); docs/methods/demosaic-lmmse-eari.md gives the table.
+(:mod:`polcam.bench.demosaic_validation`); docs/methods/demosaic-lmmse-eari.md gives the table.
 """
 
 from __future__ import annotations
@@ -113,7 +113,7 @@ def lmmse_eari(img: np.ndarray, lay: Layout) -> np.ndarray:
 
 def run_blend(img: np.ndarray, lay: Layout, *, params: dict[str, float]) -> np.ndarray:
     """:func:`lmmse_eari` with given blend parameters (the keys of :data:`BLEND_PARAMS`): what
-    the selection of :mod:`polcam.demosaicing.validation` runs.
+    the selection of :mod:`polcam.bench.demosaic_validation` runs.
 
     Returns
     -------

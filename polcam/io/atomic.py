@@ -35,9 +35,9 @@ from os import PathLike
 from pathlib import Path
 from typing import IO, Any
 
-from polcam.errors import FrameWriteError
+from polcam.errors import FrameWriteError, PolcamError
 
-__all__ = ["atomic_path", "atomic_write", "os_reason", "probe_folder"]
+__all__ = ["atomic_path", "atomic_write", "fsync_dir", "os_reason", "probe_folder"]
 
 _WRITE_MODES = ("w", "wb", "wt")
 
@@ -78,8 +78,6 @@ def os_reason(exc: BaseException) -> str:
     An OSError gives its message and errno name; a polcam error raised from one
     gives that OSError's; anything else its own text.
     """
-    from polcam.errors import PolcamError
-
     if isinstance(exc, OSError):
         reason = exc.strerror or str(exc)
         name = errno.errorcode.get(exc.errno) if exc.errno is not None else None
@@ -142,7 +140,7 @@ def probe_folder(folder: str | PathLike[str], *, cannot: str = "cannot write to 
     return st.f_bavail * st.f_frsize
 
 
-def _fsync_dir(folder: Path) -> None:
+def fsync_dir(folder: Path) -> None:
     """Make the rename durable; not every system can open a folder, so best effort."""
     flags = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0)
     try:
@@ -231,7 +229,7 @@ def atomic_write(
     except BaseException:
         _remove_quietly(tmp)
         raise
-    _fsync_dir(target.parent)
+    fsync_dir(target.parent)
 
 
 @contextlib.contextmanager
@@ -285,4 +283,4 @@ def atomic_path(path: str | PathLike[str]) -> Iterator[Path]:
     except BaseException:
         _remove_quietly(tmp)
         raise
-    _fsync_dir(target.parent)
+    fsync_dir(target.parent)

@@ -1,16 +1,19 @@
 """Decoding each raw container into counts: PNG/TIFF/BMP (OpenImageIO), PGM, headerless dumps, .npy, camera raw.
 
-One private reader per container, each returning a :class:`_Decoded` (the
-counts, their container and file bit depths, the file's own metadata);
-:func:`polcam.io.readers.read_frame` picks the reader by extension and merges
-the metadata with the sidecar.  Sizes a header or sidecar declares are checked
-against a limit (:data:`MAX_PIXELS`) before anything that size is allocated.
+One :class:`Decoder` per container in :data:`DECODERS`: its extensions, its
+reader (returning a :class:`Decoded`: the counts, their container and file
+bit depths, the file's own metadata) and its header-only size.
+:func:`decoder_for` picks one by extension; :func:`polcam.io.readers.read_frame`
+merges what it decoded with the sidecar.  Sizes a header or sidecar declares
+are checked against a limit (:data:`MAX_PIXELS`) before anything that size is
+allocated.  OpenImageIO and rawpy are imported by the readers that need them.
 """
 
 from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,11 +22,12 @@ import numpy as np
 
 from polcam.errors import FrameReadError, PixelFormatError
 from polcam.io.packing import PACKING_BITS, packed_size, unpack
-from polcam.io.sidecar import sidecar_path, validate_metadata
+from polcam.io.sidecar import read_sidecar, sidecar_path, validate_metadata
 from polcam.mosaic import PixelFormat
 from polcam.mosaic import pixel_format as lookup_pixel_format
 
-__all__ = ["MAX_PIXELS", "RAW_EXTENSIONS", "deinterleave_angles", "interleave_angles"]
+__all__ = ["DECODERS", "MAX_PIXELS", "RAW_EXTENSIONS", "DecodeRequest", "Decoded", "Decoder", "check_raw_file",
+           "decoder_for", "deinterleave_angles", "interleave_angles", "lookup_raw_format", "read_pixels"]
 
 
 _OIIO_EXTENSIONS = (".png", ".tif", ".tiff", ".bmp")
@@ -33,11 +37,6 @@ _NPY_EXTENSIONS = (".npy",)
 _LIBRAW_EXTENSIONS = (
     ".dng", ".nef", ".nrw", ".cr2", ".cr3", ".crw", ".arw", ".srf", ".sr2", ".orf", ".rw2",
     ".raf", ".pef", ".srw", ".3fr", ".iiq", ".erf", ".kdc", ".dcr", ".mos", ".mef", ".rwl",
-)
-
-#: File extensions :func:`read_frame` accepts (lower case; matching ignores case).
-RAW_EXTENSIONS: tuple[str, ...] = (
-    _OIIO_EXTENSIONS + _PNM_EXTENSIONS + _DUMP_EXTENSIONS + _NPY_EXTENSIONS + _LIBRAW_EXTENSIONS
 )
 
 #: Largest frame :func:`read_frame` reads by default, pixels (a 5 MP sensor has 5 M): a header or
@@ -59,8 +58,8 @@ _KEPT_ATTRIBUTES = ("Make", "Model", "Software", "DateTime", "Artist", "Copyrigh
 
 
 @dataclass
-class _Decoded:
-    """What a format reader found in the file."""
+class Decoded:
+    """What a decoder found in the file."""
 
     mosaic: np.ndarray                    # (H, W) uint8/uint16 as stored (counts)
     stored_bits: int                      # bits of the stored samples (8, 16, 12 for 12p, ...)
@@ -71,6 +70,17 @@ class _Decoded:
     white_level: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)     # other metadata
     white_is_limit: bool = True           # counts above the file's white level are an error
+    pixel_format: PixelFormat | None = None  # the GenICam format a dump was unpacked with
+
+
+@dataclass(frozen=True)
+class DecodeRequest:
+    """What a decoder may use besides the file: the sidecar and keyword values (``options``), where
+    each came from (``sources``: key -> words for messages), and the largest frame to allocate."""
+
+    options: dict[str, Any] = field(default_factory=dict)
+    sources: dict[str, str] = field(default_factory=dict)
+    max_pixels: int = MAX_PIXELS
 
 
 # ------------------------------------------------------------------ helpers
@@ -104,7 +114,8 @@ def deinterleave_angles(mosaic: np.ndarray) -> np.ndarray:
     )
 
 
-def _lookup_format(name: str, vendor: str | None, path: Path) -> PixelFormat:
+def lookup_raw_format(name: str, vendor: str | None, path: Path) -> PixelFormat:
+    """The pixel format ``name`` of ``vendor``, refused (naming ``path``) when unknown or computed in the camera."""
     try:
         fmt = lookup_pixel_format(name, vendor)
     except PixelFormatError as exc:
@@ -155,7 +166,8 @@ def read_pixels(inp: Any, nchannels: int, fmt: Any, p: Path) -> tuple[Any, dict[
     return arr, {a.name: a.value for a in inp.spec().extra_attribs}
 
 
-def _check_nonempty_file(p: Path) -> None:
+def check_raw_file(p: Path) -> None:
+    """Refuse a missing path, a folder or an empty file, naming it."""
     if not p.exists():
         raise FrameReadError("file not found", path=p)
     if p.is_dir():
@@ -169,7 +181,8 @@ def _check_nonempty_file(p: Path) -> None:
 
 
 # ------------------------------------------------------------ format readers
-def _read_oiio(p: Path, max_pixels: int = MAX_PIXELS) -> _Decoded:
+def _read_oiio(p: Path, req: DecodeRequest) -> Decoded:
+    max_pixels = req.max_pixels
     import OpenImageIO as oiio
 
     inp = oiio.ImageInput.open(str(p))
@@ -220,13 +233,14 @@ def _read_oiio(p: Path, max_pixels: int = MAX_PIXELS) -> _Decoded:
     kept = {k: attrs[k] for k in _KEPT_ATTRIBUTES if k in attrs}
     if kept:
         extra["file_attributes"] = kept
-    return _Decoded(mosaic, stored_bits, fmt_name, file_meta, file_bits, extra=extra)
+    return Decoded(mosaic, stored_bits, fmt_name, file_meta, file_bits, extra=extra)
 
 
 _PNM_TOKEN = re.compile(rb"\s*(?:#[^\n\r]*[\n\r]\s*)*(\S+)")
 
 
-def _read_pnm(p: Path, max_pixels: int = MAX_PIXELS) -> _Decoded:
+def _read_pnm(p: Path, req: DecodeRequest) -> Decoded:
+    max_pixels = req.max_pixels
     data = p.read_bytes()
     magic = data[:2]
     if magic in (b"P3", b"P6"):
@@ -282,12 +296,12 @@ def _read_pnm(p: Path, max_pixels: int = MAX_PIXELS) -> _Decoded:
     if mx > maxval:
         raise FrameReadError(f"PGM holds value {mx}, above its maxval {maxval}", path=p)
     bits = maxval.bit_length()
-    return _Decoded(mosaic, 8 if dtype == np.uint8 else 16, "pnm", file_bits=bits,
+    return Decoded(mosaic, 8 if dtype == np.uint8 else 16, "pnm", file_bits=bits,
                     white_level=float(maxval))
 
 
-def _read_dump(p: Path, opts: dict[str, Any], sources: dict[str, str],
-               max_pixels: int = MAX_PIXELS) -> tuple[_Decoded, PixelFormat | None]:
+def _read_dump(p: Path, req: DecodeRequest) -> Decoded:
+    opts, sources, max_pixels = req.options, req.sources, req.max_pixels
     w, h = opts.get("width"), opts.get("height")
     side = sidecar_path(p).name
     if w is None or h is None:
@@ -302,16 +316,16 @@ def _read_dump(p: Path, opts: dict[str, Any], sources: dict[str, str],
     name = opts.get("pixel_format")
     if name is None:
         if data.size == w * h:
-            return _Decoded(data.reshape(h, w).copy(), 8, "raw"), None
+            return Decoded(data.reshape(h, w).copy(), 8, "raw")
         if data.size == 2 * w * h:
-            return _Decoded(data.view("<u2").astype(np.uint16).reshape(h, w), 16, "raw"), None
+            return Decoded(data.view("<u2").astype(np.uint16).reshape(h, w), 16, "raw")
         raise FrameReadError(
             f"expected {w * h} bytes (8-bit) or {2 * w * h} bytes (16-bit little-endian) for a "
             f"{w}x{h} frame{where}, found {data.size} bytes; for packed formats give the "
             "pixel_format (sidecar key or keyword)",
             path=p,
         )
-    fmt = _lookup_format(name, opts.get("vendor"), p)
+    fmt = lookup_raw_format(name, opts.get("vendor"), p)
     bits = PACKING_BITS[fmt.packing]
     if fmt.kind == "angles":
         n_cam = packed_size(fmt.packing, w * h * 4)
@@ -328,7 +342,7 @@ def _read_dump(p: Path, opts: dict[str, Any], sources: dict[str, str],
                 path=p,
             )
         planes = unpack(data, packing=fmt.packing, width=hw, height=hh, channels=4, path=p)
-        return _Decoded(interleave_angles(planes), bits, "raw"), fmt
+        return Decoded(interleave_angles(planes), bits, "raw", pixel_format=fmt)
     expected = packed_size(fmt.packing, w * h)
     if data.size != expected:
         raise FrameReadError(
@@ -336,10 +350,12 @@ def _read_dump(p: Path, opts: dict[str, Any], sources: dict[str, str],
             f"(packing {fmt.packing!r}){where}, found {data.size} bytes",
             path=p,
         )
-    return _Decoded(unpack(data, packing=fmt.packing, width=w, height=h, path=p), bits, "raw"), fmt
+    return Decoded(unpack(data, packing=fmt.packing, width=w, height=h, path=p), bits, "raw",
+                   pixel_format=fmt)
 
 
-def _read_npy(p: Path, opts: dict[str, Any]) -> _Decoded:
+def _read_npy(p: Path, req: DecodeRequest) -> Decoded:
+    opts = req.options
     try:
         arr = np.load(p, allow_pickle=False)
     except ValueError as exc:
@@ -364,11 +380,11 @@ def _read_npy(p: Path, opts: dict[str, Any]) -> _Decoded:
             raise FrameReadError(f"array holds negative values (min {int(arr.min())}): expected counts >= 0",
                                  path=p)
         if arr.dtype.itemsize == 1:
-            return _Decoded(arr.astype(np.uint8), 8, "npy")
+            return Decoded(arr.astype(np.uint8), 8, "npy")
         mx = int(arr.max()) if arr.size else 0
         if mx > 65535:
             raise FrameReadError(f"array holds value {mx}: expected counts up to 65535 (16 bits)", path=p)
-        return _Decoded(arr.astype(np.uint16), 16, "npy")
+        return Decoded(arr.astype(np.uint16), 16, "npy")
     if kind == "f":
         finite = np.isfinite(arr)
         if not finite.all():
@@ -399,12 +415,12 @@ def _read_npy(p: Path, opts: dict[str, Any]) -> _Decoded:
         counts = arr.astype(np.uint16)
         # no bit depth of its own: that of the white level (or of the largest count)
         bits = max(int(float(opts["white_level"])).bit_length(), int(counts.max()).bit_length(), 1)
-        return _Decoded(counts, 16, "npy", file_bits=min(bits, 16))
+        return Decoded(counts, 16, "npy", file_bits=min(bits, 16))
     raise FrameReadError(f"array dtype {arr.dtype}: expected integer counts (or float with white_level)",
                          path=p)
 
 
-def _read_libraw(p: Path) -> _Decoded:
+def _read_libraw(p: Path, req: DecodeRequest) -> Decoded:
     import rawpy
 
     try:
@@ -430,8 +446,97 @@ def _read_libraw(p: Path) -> _Decoded:
     # so the bit depth covers both and values above it are not refused (see read_frame).
     data_max = int(mosaic.max()) if mosaic.size else 0
     bits = max(int(white).bit_length() if white > 0 else 0, data_max.bit_length(), 1)
-    return _Decoded(mosaic, 16, p.suffix.lower().lstrip("."), file_bits=min(bits, 16),
+    return Decoded(mosaic, 16, p.suffix.lower().lstrip("."), file_bits=min(bits, 16),
                     black_level=black, white_level=white, extra=extra, white_is_limit=False)
 
 
-# ------------------------------------------------------------------- public
+# ------------------------------------------------- sizes from the header alone
+def _oiio_size(p: Path) -> tuple[int, int] | None:
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(p))
+    if inp is None:
+        oiio.geterror()  # consumed: the frame's own read reports it
+        return None
+    try:
+        spec = inp.spec()
+        return int(spec.width), int(spec.height)
+    finally:
+        inp.close()
+
+
+def _pnm_size(p: Path) -> tuple[int, int] | None:
+    with open(p, "rb") as fh:
+        head = fh.read(1024)
+    m = re.match(rb"P[25]\s*(?:#[^\n\r]*[\n\r]\s*)*(\d+)\s*(?:#[^\n\r]*[\n\r]\s*)*(\d+)", head)
+    return (int(m.group(1)), int(m.group(2))) if m else None
+
+
+def _npy_size(p: Path) -> tuple[int, int] | None:
+    with open(p, "rb") as fh:
+        version = np.lib.format.read_magic(fh)
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape = read(fh)[0]
+    return (int(shape[1]), int(shape[0])) if len(shape) == 2 else None
+
+
+def _dump_size(p: Path) -> tuple[int, int] | None:
+    side = read_sidecar(p) or {}
+    if side.get("width") and side.get("height"):
+        return int(side["width"]), int(side["height"])
+    return None
+
+
+def _libraw_size(p: Path) -> tuple[int, int] | None:
+    return None  # LibRaw tells the size only by opening (and unpacking) the file
+
+
+# ------------------------------------------------------------------ the table
+@dataclass(frozen=True)
+class Decoder:
+    """One raw container: its extensions, its reader and its header-only size.
+
+    ``decode(path, request)`` returns the :class:`Decoded` counts; ``size(path)``
+    the declared ``(width, height)`` without reading the pixels, or None.
+    ``sized_by_metadata``: the frame size comes from the sidecar or keywords
+    (headerless dumps) rather than from the file.
+    """
+
+    name: str
+    extensions: tuple[str, ...]
+    decode: Callable[[Path, DecodeRequest], Decoded]
+    size: Callable[[Path], tuple[int, int] | None]
+    sized_by_metadata: bool = False
+
+
+#: Every container polcam reads, in the order :data:`RAW_EXTENSIONS` lists their extensions.
+DECODERS: tuple[Decoder, ...] = (
+    Decoder("OpenImageIO", _OIIO_EXTENSIONS, _read_oiio, _oiio_size),
+    Decoder("PNM", _PNM_EXTENSIONS, _read_pnm, _pnm_size),
+    Decoder("headerless dump", _DUMP_EXTENSIONS, _read_dump, _dump_size, sized_by_metadata=True),
+    Decoder("NumPy", _NPY_EXTENSIONS, _read_npy, _npy_size),
+    Decoder("LibRaw", _LIBRAW_EXTENSIONS, _read_libraw, _libraw_size),
+)
+
+_BY_EXTENSION: dict[str, Decoder] = {ext: d for d in DECODERS for ext in d.extensions}
+
+#: File extensions :func:`polcam.io.read_frame` accepts (lower case; matching ignores case).
+RAW_EXTENSIONS: tuple[str, ...] = tuple(_BY_EXTENSION)
+
+
+def decoder_for(path: str | Path) -> Decoder:
+    """The decoder of a file's extension (case ignored).
+
+    Raises
+    ------
+    FrameReadError
+        The extension is none of :data:`RAW_EXTENSIONS` (the message lists them).
+    """
+    p = Path(path)
+    ext = p.suffix.lower()
+    try:
+        return _BY_EXTENSION[ext]
+    except KeyError:
+        raise FrameReadError(
+            f"unsupported file type {ext or '(no extension)'!r}; supported: {', '.join(RAW_EXTENSIONS)}",
+            path=p) from None

@@ -85,21 +85,16 @@ import numpy as np
 from polcam.errors import FrameReadError, LayoutError
 from polcam.frame import Frame
 from polcam.io.decoders import (
-    _DUMP_EXTENSIONS,
-    _NPY_EXTENSIONS,
-    _OIIO_EXTENSIONS,
-    _PNM_EXTENSIONS,
     MAX_PIXELS,
     RAW_EXTENSIONS,
-    _check_nonempty_file,
-    _lookup_format,
-    _read_dump,
-    _read_libraw,
-    _read_npy,
-    _read_oiio,
-    _read_pnm,
+    Decoded,
+    Decoder,
+    DecodeRequest,
+    check_raw_file,
+    decoder_for,
     deinterleave_angles,
     interleave_angles,
+    lookup_raw_format,
 )
 from polcam.io.sidecar import read_sidecar, sidecar_path, validate_metadata
 from polcam.mosaic import Layout, PixelFormat, layout_for_format, parse_layout
@@ -188,15 +183,8 @@ def read_frame(
     >>> tmp.cleanup()
     """
     p = Path(path)
-    _check_nonempty_file(p)
-    ext = p.suffix.lower()
-    if ext not in RAW_EXTENSIONS:
-        raise FrameReadError(
-            f"unsupported file type {ext or '(no extension)'!r}; supported: {', '.join(RAW_EXTENSIONS)}",
-            path=p,
-        )
-    side = read_sidecar(p) or {}
-    side_name = sidecar_path(p).name
+    check_raw_file(p)
+    decoder = decoder_for(p)
     if isinstance(layout, Layout):
         layout = layout.name
     keywords = {
@@ -204,50 +192,81 @@ def read_frame(
         "height": height, "bit_depth": bit_depth, "msb_aligned": msb_aligned,
         "black_level": black_level, "white_level": white_level,
     }
+    side, opts, sources = _given(p, keywords)
+    limit = MAX_PIXELS if max_pixels is None else int(max_pixels)
+    dec = _decode(decoder, p, DecodeRequest(opts, sources, limit))
+    # values the file carries (embedded JSON) rank below the sidecar
+    merged: dict[str, Any] = {k: v for k, v in dec.file_meta.items() if v is not None}
+    merged.update(opts)
+    fmt = dec.pixel_format
+    if fmt is None and merged.get("pixel_format"):
+        fmt = lookup_raw_format(merged["pixel_format"], merged.get("vendor"), p)
+    if not decoder.sized_by_metadata:
+        _check_given_size(dec.mosaic, opts, sources, p)
+    depth, depth_src = _bit_depth(merged, sources, fmt, dec, p)
+    mosaic = dec.mosaic
+    if merged.get("msb_aligned") and depth < dec.stored_bits:
+        mosaic = mosaic >> (dec.stored_bits - depth)
+    top, largest = _check_counts(mosaic, depth, depth_src, merged, dec, p)
+    black, white = _levels(largest, top, merged, sources, dec, p)
+    metadata: dict[str, Any] = {**dec.extra, **dec.file_meta, **side, "path": str(p), "format": dec.format}
+    if fmt is not None:
+        metadata["pixel_format"] = fmt.name
+        if merged.get("vendor"):
+            metadata["vendor"] = merged["vendor"]
+    if dec.stored_bits != depth or merged.get("msb_aligned"):
+        metadata["stored_bits"] = dec.stored_bits
+    return Frame(
+        mosaic=np.ascontiguousarray(mosaic),
+        layout=_layout(merged, fmt),
+        bit_depth=depth,
+        black_level=black,
+        white_level=white,
+        metadata=metadata,
+    )
+
+
+def _given(p: Path, keywords: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any], dict[str, str]]:
+    """(the sidecar, the sidecar's values overridden by the keywords given, where each value came from)."""
+    side = read_sidecar(p) or {}
+    side_name = sidecar_path(p).name
     kw = validate_metadata({k: v for k, v in keywords.items() if v is not None}, path=p,
                            source="the keyword arguments")
     opts: dict[str, Any] = {k: v for k, v in side.items() if v is not None}
     opts.update(kw)
     sources = {k: ("the keywords" if k in kw else f"the sidecar {side_name}") for k in opts}
+    return side, opts, sources
 
-    limit = MAX_PIXELS if max_pixels is None else int(max_pixels)
-    fmt: PixelFormat | None = None
+
+def _decode(decoder: Decoder, p: Path, request: DecodeRequest) -> Decoded:
+    """Run the decoder; an OS error reading the file is a :class:`FrameReadError` naming it."""
     try:
-        if ext in _OIIO_EXTENSIONS:
-            dec = _read_oiio(p, limit)
-        elif ext in _PNM_EXTENSIONS:
-            dec = _read_pnm(p, limit)
-        elif ext in _DUMP_EXTENSIONS:
-            dec, fmt = _read_dump(p, opts, sources, limit)
-        elif ext in _NPY_EXTENSIONS:
-            dec = _read_npy(p, opts)
-        else:
-            dec = _read_libraw(p)
+        dec = decoder.decode(p, request)
     except MemoryError:  # pragma: no cover
         raise
     except OSError as exc:
         raise FrameReadError(f"cannot read: {exc.strerror or exc}", path=p) from exc
+    if dec.mosaic.ndim != 2:  # pragma: no cover - every decoder returns 2-D
+        raise FrameReadError(f"decoded image has shape {dec.mosaic.shape}: expected (height, width)", path=p)
+    return dec
 
-    # Values the file carries (embedded JSON) rank below the sidecar.
-    merged: dict[str, Any] = {k: v for k, v in dec.file_meta.items() if v is not None}
-    merged.update(opts)
-    if fmt is None and merged.get("pixel_format"):
-        fmt = _lookup_format(merged["pixel_format"], merged.get("vendor"), p)
 
-    mosaic = dec.mosaic
-    if mosaic.ndim != 2:  # pragma: no cover - every reader returns 2-D
-        raise FrameReadError(f"decoded image has shape {mosaic.shape}: expected (height, width)", path=p)
-    if ext not in _DUMP_EXTENSIONS:  # a dump's size comes from them; any other file has its own
-        said = {k: opts[k] for k in ("width", "height") if opts.get(k) is not None}
-        have = {"width": mosaic.shape[1], "height": mosaic.shape[0]}
-        if any(int(v) != have[k] for k, v in said.items()):
-            src = sources.get("width", sources.get("height", "the sidecar"))
-            raise FrameReadError(
-                f"{src} gives {said.get('width', '?')}x{said.get('height', '?')} (width x height) but the "
-                f"image is {have['width']}x{have['height']}: the sidecar belongs to another frame, or "
-                "the image was cropped or resized", path=p)
+def _check_given_size(mosaic: np.ndarray, opts: dict[str, Any], sources: dict[str, str], p: Path) -> None:
+    """A sidecar or keyword width/height must be the size the image itself has."""
+    said = {k: opts[k] for k in ("width", "height") if opts.get(k) is not None}
+    have = {"width": mosaic.shape[1], "height": mosaic.shape[0]}
+    if any(int(v) != have[k] for k, v in said.items()):
+        src = sources.get("width", sources.get("height", "the sidecar"))
+        raise FrameReadError(
+            f"{src} gives {said.get('width', '?')}x{said.get('height', '?')} (width x height) but the "
+            f"image is {have['width']}x{have['height']}: the sidecar belongs to another frame, or "
+            "the image was cropped or resized", path=p)
 
-    # bit depth: keyword > sidecar > embedded > pixel format > file header > container
+
+def _bit_depth(merged: dict[str, Any], sources: dict[str, str], fmt: PixelFormat | None, dec: Decoded,
+               p: Path) -> tuple[int, str]:
+    """(bit depth, where it came from): keyword > sidecar > embedded > pixel format > file header >
+    container; never wider than the stored samples."""
     depth = merged.get("bit_depth")
     depth_src = sources.get("bit_depth", "the file's metadata")
     if depth is None and fmt is not None:
@@ -263,10 +282,13 @@ def read_frame(
             "the file stores",
             path=p,
         )
+    return depth, depth_src
 
-    if merged.get("msb_aligned") and depth < dec.stored_bits:
-        mosaic = mosaic >> (dec.stored_bits - depth)
 
+def _check_counts(mosaic: np.ndarray, depth: int, depth_src: str, merged: dict[str, Any], dec: Decoded,
+                  p: Path) -> tuple[int, int]:
+    """Refuse odd sizes and counts above the bit depth; return (the top count of the depth, the
+    largest count in the mosaic)."""
     h, w = mosaic.shape
     if h % 2 or w % 2:
         raise FrameReadError(
@@ -285,51 +307,39 @@ def read_frame(
             f"(bit_depth from {depth_src}){hint}",
             path=p,
         )
+    return top, mx
 
+
+def _levels(mx: int, top: int, merged: dict[str, Any], sources: dict[str, str], dec: Decoded,
+            p: Path) -> tuple[float, float]:
+    """(black, white) levels: given > the file's > 0 and the top of the bit depth; counts above a
+    white level that was given (or that the file states as a limit) are refused."""
     black = merged.get("black_level", dec.black_level)
     white = merged.get("white_level", dec.white_level)
     black = 0.0 if black is None else float(black)
     white = float(top) if white is None else float(white)
     if white <= black:
         raise FrameReadError(f"white level {white} is not above black level {black}", path=p)
-    white_given = "white_level" in merged or dec.white_is_limit
-    if mx > white and white_given:
+    if mx > white and ("white_level" in merged or dec.white_is_limit):
         raise FrameReadError(
             f"pixel values reach {mx}, above the white level {white:g} "
             f"(from {sources.get('white_level', 'the file')}); expected counts <= white_level",
             path=p,
         )
+    return black, white
 
-    # layout: keyword > sidecar > embedded > pixel format > None
-    lay: Layout | None = None
+
+def _layout(merged: dict[str, Any], fmt: PixelFormat | None) -> Layout | None:
+    """Layout: keyword > sidecar > embedded > pixel format > None (a plain Mono/Bayer format: the
+    caller must say, --layout)."""
     if merged.get("layout"):
-        lay = parse_layout(merged["layout"])
-    elif fmt is not None:
-        try:
-            lay = layout_for_format(fmt)
-        except LayoutError:
-            lay = None  # plain Mono/Bayer format: the caller must say (--layout)
-
-    metadata: dict[str, Any] = {}
-    metadata.update(dec.extra)
-    metadata.update(dec.file_meta)
-    metadata.update(side)
-    metadata["path"] = str(p)
-    metadata["format"] = dec.format
+        return parse_layout(merged["layout"])
     if fmt is not None:
-        metadata["pixel_format"] = fmt.name
-        if merged.get("vendor"):
-            metadata["vendor"] = merged["vendor"]
-    if dec.stored_bits != depth or merged.get("msb_aligned"):
-        metadata["stored_bits"] = dec.stored_bits
-    return Frame(
-        mosaic=np.ascontiguousarray(mosaic),
-        layout=lay,
-        bit_depth=depth,
-        black_level=black,
-        white_level=white,
-        metadata=metadata,
-    )
+        try:
+            return layout_for_format(fmt)
+        except LayoutError:
+            return None
+    return None
 
 
 def declared_size(path: str | PathLike[str]) -> tuple[int, int] | None:
@@ -345,42 +355,11 @@ def declared_size(path: str | PathLike[str]) -> tuple[int, int] | None:
     tuple of int or None
         Width and height in pixels; ``None`` where the size cannot be told
         without decoding (camera raw formats, unreadable headers, a dump
-        without width/height in its sidecar).  For a dump of four angle
-        planes this is the size the sidecar gives.
+        without width/height in its sidecar, an unsupported extension).  For a
+        dump of four angle planes this is the size the sidecar gives.
     """
     p = Path(path)
-    ext = p.suffix.lower()
     try:
-        if ext in _OIIO_EXTENSIONS:
-            import OpenImageIO as oiio
-
-            inp = oiio.ImageInput.open(str(p))
-            if inp is None:
-                oiio.geterror()  # consumed: the frame's own read reports it
-                return None
-            try:
-                spec = inp.spec()
-                return int(spec.width), int(spec.height)
-            finally:
-                inp.close()
-        if ext in _PNM_EXTENSIONS:
-            import re
-
-            with open(p, "rb") as fh:
-                head = fh.read(1024)
-            m = re.match(rb"P[25]\s*(?:#[^\n\r]*[\n\r]\s*)*(\d+)\s*(?:#[^\n\r]*[\n\r]\s*)*(\d+)", head)
-            return (int(m.group(1)), int(m.group(2))) if m else None
-        if ext in _NPY_EXTENSIONS:
-            with open(p, "rb") as fh:
-                version = np.lib.format.read_magic(fh)
-                read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                        else np.lib.format.read_array_header_2_0)
-                shape = read(fh)[0]
-            return (int(shape[1]), int(shape[0])) if len(shape) == 2 else None
-        if ext in _DUMP_EXTENSIONS:
-            side = read_sidecar(p) or {}
-            if side.get("width") and side.get("height"):
-                return int(side["width"]), int(side["height"])
+        return decoder_for(p).size(p)
     except (OSError, ValueError, FrameReadError):
         return None
-    return None

@@ -31,14 +31,11 @@ leaves neither half-written.
 
 from __future__ import annotations
 
-import shutil
-
-import os
-
-import errno
-
 import contextlib
+import errno
 import json
+import os
+import shutil
 from collections.abc import Mapping
 from os import PathLike
 from pathlib import Path

@@ -13,7 +13,7 @@ import numpy as np
 
 from polcam import _imageops
 from polcam._xp import namespace
-from polcam.separation._illuminant import _SATURATED
+from polcam.separation._illuminant import SATURATED
 
 __all__ = ["declipped", "fill_clipped_highlights", "smooth_fill"]
 
@@ -32,7 +32,7 @@ def declipped(stack: Any) -> Any:
 
     ``stack`` is (4, H, W, C) float32 (angles 0, 45, 90, 135; C = 3 colours, or 1 for mono),
     numpy or torch (the result is of the same kind, on the same device).
-    A sample at or above the white level (``_SATURATED``) holds less than the light that fell
+    A sample at or above the white level (``SATURATED``) holds less than the light that fell
     on it.  Per pixel and channel:
 
     * one clipped sample: every ideal polarizer stack has ``I0 + I90 = I45 + I135`` (both S0),
@@ -51,7 +51,7 @@ def declipped(stack: Any) -> Any:
     """
     xp = namespace(stack)
     s = xp.copy(stack)
-    clipped = stack >= _SATURATED                                  # (4, H, W, C)
+    clipped = stack >= SATURATED                                  # (4, H, W, C)
     n = clipped.sum(axis=0)
     if not bool(n.any()):
         return s
@@ -195,7 +195,7 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
     pixel is clipped.
     """
     xp = namespace(diffuse)
-    sat_px = xp.amax(measured, axis=-1) >= _SATURATED       # a channel clipped at all four angles
+    sat_px = xp.amax(measured, axis=-1) >= SATURATED       # a channel clipped at all four angles
     n_sat = int(sat_px.sum())
     stats = {"clipped_pixels": n_sat, "clipped_filled": 0, "clipped_as_measured": n_sat}
     if n_sat == 0:

@@ -38,6 +38,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
 
@@ -48,7 +49,7 @@ TOLERANCE = 0.04
 #: Standard errors from white under which the polarized light's colour is noise: the camera's white
 #: balance is kept (:func:`estimate_illuminant`).
 WHITE_Z = 3.0
-_SATURATED = 0.98
+SATURATED = 0.98
 #: Chromaticity distance from the surface's own colour over which polarized light counts in full
 #: as the illuminant's (:func:`projected_chromaticity`'s ``own_colour``).
 OWN_COLOUR = 0.1
@@ -103,7 +104,7 @@ def _parts(stack: Any) -> tuple[Any, Any, Any, Any]:
     xp = namespace(s)
     ic = s.mean(axis=0)
     isv = 0.5 * xp.hypot(s[0] - s[2], s[1] - s[3])
-    unsat = xp.amax(xp.amax(s, axis=0), axis=-1) < _SATURATED
+    unsat = xp.amax(xp.amax(s, axis=0), axis=-1) < SATURATED
     return s, ic, isv, unsat
 
 
@@ -132,7 +133,7 @@ def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None)
         (3,) float64 with mean 1 (ones when the polarization is not significant).
     """
     _checked_stack(stack)
-    eff = None if efficiency is None else _check_efficiency(efficiency)
+    eff = None if efficiency is None else check_efficiency(efficiency)
     return _unit_mean(projected_chromaticity(stack, efficiency=eff, own_colour=OWN_COLOUR))
 
 
@@ -166,7 +167,7 @@ def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:
     return _unit_mean(xp.to_numpy(xp.astype(ic[ok][sel], xp.float64).sum(axis=0)))
 
 
-def _check_efficiency(efficiency: object) -> np.ndarray:
+def check_efficiency(efficiency: object) -> np.ndarray:
     e = np.asarray(efficiency, dtype=np.float64).reshape(-1)
     if e.size != 3 or not np.all(np.isfinite(e)) or np.any(e <= 0) or np.any(e > 1):
         raise MethodError(f"polarizer efficiency {efficiency!r}: expected three numbers in (0, 1] (R, G, B)")
@@ -192,7 +193,7 @@ def estimate_illuminant(stack: np.ndarray, *, efficiency: object = None,
     IlluminantEstimate
     """
     if efficiency is not None:
-        eff = _check_efficiency(efficiency)
+        eff = check_efficiency(efficiency)
         pol = polarized_colour(stack, efficiency=eff)
         return IlluminantEstimate(pol, eff / eff.max(), "calibration", pol, highlight_colour(stack))
     terms, ok = _projection_terms(_checked_stack(stack), None, OWN_COLOUR)
@@ -274,7 +275,7 @@ def _projection_terms(stack: Any, efficiency: Any, own_colour: float | None) -> 
     p = xp.pad_hw(vs, 1, 0.0)                                   # zeros outside
     box = sum(p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
     terms = xp.einsum("hwcj,hwj->hwc", v, box - vs)             # (H, W, 3)
-    ok = xp.amax(xp.amax(x, axis=0), axis=-1) < _SATURATED
+    ok = xp.amax(xp.amax(x, axis=0), axis=-1) < SATURATED
     if own_colour is not None:
         terms, ok = _own_colour_weighted(terms, x, ok, float(own_colour))
     return terms, ok
@@ -294,7 +295,7 @@ def _total_chromaticity(terms: Any, ok: Any, significance: float) -> np.ndarray:
     return total / total.sum()
 
 
-def _plane_basis() -> np.ndarray:
+def plane_basis() -> np.ndarray:
     """Two orthonormal vectors spanning the chromaticity plane (sum of components 0), (2, 3) float64."""
     return np.array([[1.0, -1.0, 0.0], [1.0, 1.0, -2.0]]) / np.array([[np.sqrt(2.0)], [np.sqrt(6.0)]])
 
@@ -327,7 +328,7 @@ def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int | None = None)
     bh, bw = h // hb, w // wb
     b = xp.to_numpy(t[:hb * bh, :wb * bw].reshape(hb, bh, wb, bw, 3).sum(axis=(1, 3)).reshape(-1, 3))
     r = b - np.outer(b.sum(axis=1), c)
-    basis = _plane_basis()
+    basis = plane_basis()
     d = basis @ (c - 1.0 / 3.0)
     cov = basis @ (r.T @ r) @ basis.T / (s * s)
     if np.linalg.det(cov) <= 1e-30 * max(float(np.trace(cov)) ** 2, 1e-300):
@@ -341,8 +342,6 @@ def _own_colour_weighted(terms: Any, x: Any, ok: Any, dist: float) -> tuple[Any,
     ``terms`` (H, W, 3) float64, ``x`` the (4, H, W, 3) float64 stack and ``ok`` (H, W) bool, numpy
     or torch (the result is of the same kind).
     """
-    from polcam import _imageops
-
     xp = namespace(terms)
     ic = x.mean(axis=0)
     imin = xp.maximum(ic - 0.5 * xp.hypot(x[0] - x[2], x[1] - x[3]), 0.0)

@@ -1,9 +1,9 @@
 """Noise of a polarization stack's Stokes components, and the garrotes that shrink what noise explains.
 
 Used by ``polarized-residual`` (docs/methods/polarized-residual.md, steps 2 and 6): the
-deviation of q and u per pixel measured from the stack itself (:func:`_stokes_noise`), the
+deviation of q and u per pixel measured from the stack itself (:func:`stokes_noise`), the
 polarized amplitude's noise bias removed (:func:`_debias`), and the colour prior's removal
-shrunk by the noise of Ic (:func:`_prior_removal`).
+shrunk by the noise of Ic (:func:`prior_removal`).
 """
 
 from __future__ import annotations
@@ -16,16 +16,16 @@ import numpy as np
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
-from polcam.separation._illuminant import _SATURATED
+from polcam.separation._illuminant import SATURATED
 
 #: Noise deviations at which the non-negative garrote of the polarized amplitude (``noise="shrink"``) sets in.
 _KSIG = 2.5
 #: Deviations of its own noise at which a smoothed quantity is coherent signal, not noise: the amplitude
-#: that fixes the polarization axis (:func:`_axis_debias`), the colour prior's removal (:func:`_prior_removal`).
-_COHERENT_KSIG = 4.0
+#: that fixes the polarization axis (:func:`axis_debias`), the colour prior's removal (:func:`prior_removal`).
+COHERENT_KSIG = 4.0
 
 
-def _stokes_noise(stack: Any, ic: Any) -> Any:
+def stokes_noise(stack: Any, ic: Any) -> Any:
     """Standard deviation of the noise of q and u per pixel, (H, W[, C]) like ``ic``.
 
     An ideal linear-polarizer stack obeys ``I0 + I90 = I45 + I135`` (both are S0) whatever the
@@ -48,7 +48,7 @@ def _stokes_noise(stack: Any, ic: Any) -> Any:
     u = (0.5 * (s[1] - s[3])).reshape(flat)
     r = (0.5 * (s[0] + s[2] - s[1] - s[3])).reshape(flat)
     i2 = ic.reshape(flat)
-    valid = (xp.amax(s, axis=0) < _SATURATED).reshape(flat)      # clipping breaks both identities
+    valid = (xp.amax(s, axis=0) < SATURATED).reshape(flat)      # clipping breaks both identities
     out = []
     for c in range(i2.shape[-1]):
         lev = i2[..., c]
@@ -94,7 +94,7 @@ def _garrote(x2: Any, var: Any) -> Any:
     return xp.clip(1.0 - (_KSIG * _KSIG) * var / xp.maximum(x2, 1e-12), 0.0, 1.0)
 
 
-def _prior_removal(diffuse: Any, sf: Any, sig: Any, *, smooth: int | None = None) -> Any:
+def prior_removal(diffuse: Any, sf: Any, sig: Any, *, smooth: int | None = None) -> Any:
     """What the colour prior removes from ``diffuse``, shrunk by the noise of Ic.
 
     ``diffuse`` and ``sf`` (the prior's specular-free estimate) are (H, W, 3); ``sig`` is the
@@ -102,7 +102,7 @@ def _prior_removal(diffuse: Any, sf: Any, sig: Any, *, smooth: int | None = None
     is scaled by a garrote at ``_KSIG`` deviations of Ic's noise over the three channels
     (``var Ic = var q / 2``): on a noisy stack the specular-free estimate scatters below the diffuse by
     the noise alone.  With ``smooth`` (an odd Gaussian kernel side), the removal is kept whole where
-    its Gaussian-smoothed value exceeds ``_COHERENT_KSIG`` of its own deviations (a coherent
+    its Gaussian-smoothed value exceeds ``COHERENT_KSIG`` of its own deviations (a coherent
     highlight's, which the garrote would shrink by ``_KSIG^2 var / removal``: a quarter at five
     deviations), blended with the garroted removal over one deviation around that threshold (no
     jump; docs/methods/polarized-residual.md).  Returns (H, W, 3) float32 >= 0 (numpy or torch, as the input).
@@ -114,16 +114,16 @@ def _prior_removal(diffuse: Any, sf: Any, sig: Any, *, smooth: int | None = None
     out = delta * _garrote(dn2, var)
     if smooth is not None:
         db = _imageops.gaussian(delta, smooth)
-        # deviations of the smoothed removal: kept whole from _COHERENT_KSIG + 0.5 of them, garroted
-        # below _COHERENT_KSIG - 0.5, in proportion between (a hard switch made the removal jump by
+        # deviations of the smoothed removal: kept whole from COHERENT_KSIG + 0.5 of them, garroted
+        # below COHERENT_KSIG - 0.5, in proportion between (a hard switch made the removal jump by
         # its whole garroted part under a change of 1e-7 in the input)
-        dev = xp.sqrt((db * db).sum(axis=-1, keepdims=True) / xp.maximum(var, 1e-30)) / _reduction(smooth)
-        whole = xp.where(var > 0, xp.clip(dev - (_COHERENT_KSIG - 0.5), 0.0, 1.0), 1.0)
+        dev = xp.sqrt((db * db).sum(axis=-1, keepdims=True) / xp.maximum(var, 1e-30)) / noise_reduction(smooth)
+        whole = xp.where(var > 0, xp.clip(dev - (COHERENT_KSIG - 0.5), 0.0, 1.0), 1.0)
         out = whole * delta + (1.0 - whole) * out
     return xp.astype(out, xp.float32)
 
 
-def _reduction(side: int) -> float:
+def noise_reduction(side: int) -> float:
     """Factor by which a ``side`` x ``side`` Gaussian blur (OpenCV's default sigma) reduces independent noise."""
     k = cv2.getGaussianKernel(side, 0)
     return float(np.sqrt(((k @ k.T) ** 2).sum()))
@@ -145,22 +145,22 @@ def _debias(isv: Any, sig: Any, how: str, *, components: int = 2) -> Any:
     raise MethodError(f"polarized-residual: noise={how!r}: expected 'off', 'rice', 'shrink' or 'thresh'")
 
 
-def _axis_debias(q: Any, u: Any, c2: Any, s2: Any, smoothed: Any,
+def axis_debias(q: Any, u: Any, c2: Any, s2: Any, smoothed: Any,
                  sig: Any, reduction: float, how: str) -> Any:
     """The polarized amplitude per pixel and channel, unbiased where the polarization axis is known.
 
     ``q``, ``u`` (H, W, C) are the Stokes components, ``(c2, s2)`` (H, W, 1) the unit polarization
     axis of the smoothed components, ``smoothed`` (H, W, C) the smoothed signed amplitude along it,
     ``sig`` (H, W, C) the deviation of q and u, and ``reduction`` the factor by which smoothing
-    reduced it (the smoothing kernel's root sum of squared weights, :func:`_reduction`).
+    reduced it (the smoothing kernel's root sum of squared weights, :func:`noise_reduction`).
 
-    Where ``|smoothed|`` exceeds ``_COHERENT_KSIG`` of its own deviations (``reduction sig``), the
+    Where ``|smoothed|`` exceeds ``COHERENT_KSIG`` of its own deviations (``reduction sig``), the
     axis is signal, not noise: the projection ``par = q c2 + u s2`` has zero-mean noise, so
     ``|par|`` is kept as it is (a garrote would shrink a true amplitude ``x`` by
     ``_KSIG^2 sig^2 / x``: a fifth of it at five deviations), and only the orthogonal part, noise
     for a coherent polarization, is debiased as one component.  Elsewhere the amplitude
     ``hypot(q, u)`` is debiased as before (:func:`_debias`).  The two are blended over one
-    deviation, from ``_COHERENT_KSIG - 0.5`` to ``_COHERENT_KSIG + 0.5``: a hard switch made
+    deviation, from ``COHERENT_KSIG - 0.5`` to ``COHERENT_KSIG + 0.5``: a hard switch made
     ``Imin`` jump by up to 0.02 under a change of 1e-7 in the input
     (docs/methods/polarized-residual.md).  Returns (H, W, C) float32 >= 0.
     """
@@ -169,7 +169,7 @@ def _axis_debias(q: Any, u: Any, c2: Any, s2: Any, smoothed: Any,
     orth = u * c2 - q * s2
     unit = reduction * sig
     # where the noise is zero, any amplitude fixes the axis
-    known_w = xp.where(unit > 0, xp.clip(abs(smoothed) / xp.maximum(unit, 1e-30) - (_COHERENT_KSIG - 0.5), 0.0, 1.0),
+    known_w = xp.where(unit > 0, xp.clip(abs(smoothed) / xp.maximum(unit, 1e-30) - (COHERENT_KSIG - 0.5), 0.0, 1.0),
                        xp.astype(abs(smoothed) > 0, q.dtype))
     known = xp.hypot(par, _debias(abs(orth), sig, how, components=1))
     return xp.astype(known_w * known + (1.0 - known_w) * _debias(xp.hypot(q, u), sig, how), xp.float32)

@@ -17,8 +17,10 @@ import numpy as np
 
 from polcam import _imageops
 from polcam._xp import namespace
-from polcam.separation._illuminant import _SATURATED, _plane_basis
-from polcam.separation._polarization_noise import _COHERENT_KSIG, _prior_removal, _reduction
+from polcam.filters import joint_bilateral
+from polcam.separation._illuminant import SATURATED, plane_basis
+from polcam.separation._polarization_noise import COHERENT_KSIG, noise_reduction, prior_removal
+from polcam.separation.shen13 import cluster_ratios, ratio_specular
 
 __all__ = ["residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
 
@@ -196,12 +198,12 @@ def _diffuse_part(v: dict[str, Any], e: Any, a: Any, a_coh: Any) -> tuple[Any, A
     a = xp.astype(xp.where(take, xp.where(al * be < 0, abs(al), 0.0), a), xp.float32)
     b = xp.astype(xp.where(take, abs(be), 0.0), xp.float32)
     # for step 3, only the specular part marks a highlight: where the smoothed amplitudes' diffuse-
-    # colour term dominates and what G leaves of them is beyond _COHERENT_KSIG of its noise (a
+    # colour term dominates and what G leaves of them is beyond COHERENT_KSIG of its noise (a
     # surface's own coherent polarized light, as near occluding contours), the G term |alpha| alone
     # counts
     al_s, _, dom_s = fit(amp_g, (amp * e).sum(axis=-1))
     sig = v["sig"]
-    own = well & dom_s & (off > _COHERENT_KSIG * _reduction(v["k_small"]) * xp.sqrt((sig * sig).sum(axis=-1)))
+    own = well & dom_s & (off > COHERENT_KSIG * noise_reduction(v["k_small"]) * xp.sqrt((sig * sig).sum(axis=-1)))
     a_coh = xp.astype(xp.where(own, xp.minimum(abs(al_s), a_coh), a_coh), xp.float32)
     return a, b, a_coh
 
@@ -232,7 +234,7 @@ def _residual_colour(resid: Any, g: np.ndarray, gx: Any, opts: dict[str, Any], k
     rsum = resid.sum(axis=-1)
     lit = rsum > _LIT
     chroma = resid / xp.maximum(rsum, _LIGHT_GUARD)[..., None]
-    v = (chroma - gx / g.sum()) @ xp.asarray(_plane_basis().T.astype(np.float32), like=resid)  # (H, W, 2)
+    v = (chroma - gx / g.sum()) @ xp.asarray(plane_basis().T.astype(np.float32), like=resid)  # (H, W, 2)
     sat = xp.astype(xp.hypot(v[..., 0], v[..., 1]), xp.float32)
     sat = xp.astype(xp.where(lit, sat, 0.0), xp.float32)
     hue = xp.arctan2(v[..., 1], v[..., 0])
@@ -343,9 +345,9 @@ def _colour_prior(diffuse: Any, resid: Any, v: dict[str, Any], sat_d: Any, opts:
     # not where a channel is clipped at all four angles: that pixel's colour is not measured (an
     # overexposed white wall under a tinted light looked coloured and lost up to 38 % of its
     # light); a clipped highlight is the clipped fill's (_clipping)
-    wgt = xp.where(xp.amax(measured, axis=-1) >= _SATURATED, 0.0, wgt)
+    wgt = xp.where(xp.amax(measured, axis=-1) >= SATURATED, 0.0, wgt)
     wgt = wgt[..., None]
-    return diffuse - wgt * _prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig,
+    return diffuse - wgt * prior_removal(diffuse, sf, sig if opts["noise"] != "off" else 0.0 * sig,
                                           smooth=k_small)
 
 
@@ -362,9 +364,6 @@ def _specular_free(image: Any, smooth: float) -> Any:
     the image's mean over channels: spatial sigma ``smooth`` pixels, range sigma a tenth of the
     guide's maximum, so material edges of different brightness keep their own ratios.
     """
-    from polcam.filters import joint_bilateral
-    from polcam.separation.shen13 import cluster_ratios, ratio_specular
-
     xp = namespace(image)
     q_map, _ = cluster_ratios(image)
     ok = xp.isfinite(q_map)

@@ -46,10 +46,11 @@ from polcam.separation._clipping import declipped, fill_clipped_highlights
 from polcam.separation._diffuse_polarization import radial_share
 from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import peak_excess
-from polcam.separation._illuminant import _SATURATED, estimate_illuminant
-from polcam.separation._polarization_noise import _axis_debias, _reduction, _stokes_noise
-from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
+from polcam.separation._illuminant import SATURATED, check_efficiency, estimate_illuminant
+from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
+from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
+from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "DEFAULTS"]
 
@@ -126,7 +127,6 @@ def _check(opts: dict[str, Any]) -> None:
     if dev is not None:
         if not isinstance(dev, str):
             raise MethodError(f"polarized-residual: device={dev!r}: expected None (numpy) or a torch device name")
-        from polcam.separation.tensor.torch_backend import check_device
 
         check_device(dev)
     g = opts["illuminant"]
@@ -251,7 +251,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
     """
     xp = namespace(s)
     measured = s.mean(axis=0)
-    clipped_any = (s >= _SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
+    clipped_any = (s >= SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
     s = _declip(s, opts)
     g, eff, est, source = _illuminant(s, opts)
     gx = xp.asarray(g, like=s)                              # the same (3,) float32 where the stack is
@@ -315,9 +315,7 @@ def _illuminant(s: Any, opts: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, A
         est = None
         eff = np.ones(3) if opts["efficiency"] is None else np.asarray(opts["efficiency"], np.float64)
         if opts["efficiency"] is not None:
-            from polcam.separation._illuminant import _check_efficiency
-
-            eff = _check_efficiency(eff)
+            eff = check_efficiency(eff)
         source = "given"
     else:
         est = estimate_illuminant(s, efficiency=opts["efficiency"])
@@ -346,7 +344,7 @@ def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]
         effx = xp.asarray(eff.astype(np.float32), like=s)
         q = q / effx
         u = u / effx
-    sig = _stokes_noise(s, ic)
+    sig = stokes_noise(s, ic)
     side = max(h, w)
     k_small = _coherent_kernel(side)
     qs = _imageops.gaussian(q, k_small)
@@ -360,11 +358,11 @@ def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]
     amp = qs * c2 + us * s2                                 # (H, W, 3) signed
     amp_px = q * c2 + u * s2                                # the same, unsmoothed (the pixel's own colours)
     # the polarized amplitude with the noise's bias removed: unbiased along the axis where the smoothed
-    # amplitude fixes it, shrunk by the noise elsewhere (_polarization_noise._axis_debias)
+    # amplitude fixes it, shrunk by the noise elsewhere (_polarization_noise.axis_debias)
     if opts["noise"] == "off":
         isv = xp.hypot(q, u)
     else:
-        isv = _axis_debias(q, u, c2, s2, amp, sig, _reduction(k_small), opts["noise"])
+        isv = axis_debias(q, u, c2, s2, amp, sig, noise_reduction(k_small), opts["noise"])
     imin = xp.maximum(ic - isv, 0.0)
     # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
     # colour demosaicing's polarization errors differ between channels and partly cancel in it

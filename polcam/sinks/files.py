@@ -26,8 +26,11 @@ from typing import Any
 
 import numpy as np
 
+import polcam.io as pio
 from polcam._hashing import sha256_file
-from polcam.errors import FrameWriteError, MethodError
+from polcam.errors import FrameReadError, FrameWriteError, MethodError
+from polcam.io import read_frame, read_image
+from polcam.io.atomic import atomic_write
 from polcam.sinks.base import Record, SinkBase
 
 __all__ = ["FOLDER_PRODUCTS", "FORMATS", "ProductFiles", "check_format", "extension", "file_record", "read_frame_folder", "write_meta",
@@ -97,8 +100,6 @@ def write_products(target: str | Path, products: Mapping[str, np.ndarray], *, fm
     MethodError
         An unknown ``fmt``.
     """
-    import polcam.io as pio  # looked up at call time (tests substitute a failing writer)
-
     ext = extension(fmt)
     target = Path(target)
     _make_folder(target)
@@ -114,8 +115,6 @@ def write_products(target: str | Path, products: Mapping[str, np.ndarray], *, fm
 
 def write_meta(target: str | Path, meta: Mapping[str, Any]) -> Path:
     """Write ``target/meta.json`` atomically (last: it marks the frame finished); returns its path."""
-    from polcam.io.atomic import atomic_write
-
     path = Path(target) / "meta.json"
     _make_folder(path.parent)
     with atomic_write(path, "w") as fh:
@@ -244,9 +243,6 @@ def read_frame_folder(folder: str | Path) -> Record:
     FrameReadError
         A product file that is missing or unreadable.
     """
-    from polcam.errors import FrameReadError
-    from polcam.io import read_frame, read_image
-
     folder = Path(folder)
     products: dict[str, np.ndarray] = {}
     for name in FOLDER_PRODUCTS:

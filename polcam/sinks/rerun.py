@@ -72,7 +72,8 @@ import cv2
 import numpy as np
 
 from polcam.sinks.base import Record, SinkBase
-from polcam.sinks.rerun_web import LOOPBACK, WebServer, is_loopback
+from polcam.sinks.files import read_frame_folder
+from polcam.sinks.rerun_web import LOOPBACK, WebServer, is_loopback, native_viewer
 
 __all__ = [
     "AOLP_DOLP_FULL",
@@ -388,7 +389,6 @@ class RerunSink(SinkBase):
         rec = rr.RecordingStream(application_id, recording_id=recording_id)
         bp = blueprint(live=live)
         if self.target == "spawn":  # our own viewer process: the SDK's spawn listens on every interface
-            from polcam.sinks.rerun_web import native_viewer
 
             rec.connect_grpc(native_viewer(bind=bind), default_blueprint=bp)
         elif self.target == "serve":
@@ -540,8 +540,6 @@ class RerunSink(SinkBase):
             An unknown statistic.
         """
         if record.folder is not None and not record.products and record.frame is None:
-            from polcam.sinks.files import read_frame_folder
-
             record = read_frame_folder(record.folder)
         ts = record.timestamp_ns
         products, scale = record.products, record.scale

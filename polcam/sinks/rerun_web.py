@@ -20,6 +20,8 @@ import time
 import urllib.parse
 from pathlib import Path
 
+from polcam.errors import PolcamError
+
 __all__ = ["LOOPBACK", "WebServer", "check_port_free", "has_display", "is_loopback", "listening_owner",
            "native_viewer", "rerun_executable"]
 
@@ -54,8 +56,6 @@ def rerun_executable() -> str:
 
     found = shutil.which("rerun")
     if found is None:
-        from polcam.errors import PolcamError
-
         raise PolcamError("the Rerun command-line tool (rerun-sdk's rerun_cli) is not installed")
     return found
 
@@ -87,8 +87,6 @@ def check_port_free(bind: str, port: int) -> None:
         The port is in use (named, with what to do).
     """
     import errno
-
-    from polcam.errors import PolcamError
 
     family = socket.AF_INET6 if ":" in bind else socket.AF_INET
     with socket.socket(family, socket.SOCK_STREAM) as probe:
@@ -188,8 +186,6 @@ class WebServer:
 
     def __init__(self, *, bind: str = LOOPBACK, port: int = 9090, recordings: tuple[str | Path, ...] = (),
                  memory_limit: str = "1GiB", start_timeout: float = 30.0) -> None:
-        from polcam.errors import PolcamError
-
         if not 0 <= int(port) <= 65534:
             raise PolcamError(f"port {port!r}: expected 0 (any free port) or 1..65534 (the data use port + 1)")
         web, grpc = _free_ports(2) if int(port) == 0 else (int(port), int(port) + 1)
@@ -228,8 +224,6 @@ class WebServer:
         return None if self._proc is None else self._proc.pid
 
     def _wait_ready(self, timeout: float) -> None:
-        from polcam.errors import PolcamError
-
         end = time.monotonic() + timeout
         pending = {self.port, self.grpc_port}
         while pending:
@@ -315,8 +309,6 @@ def native_viewer(*, recordings: tuple[str | Path, ...] = (), bind: str = LOOPBA
         No display to open a window on (with the flag that serves the viewer
         to a browser instead), or the viewer did not start.
     """
-    from polcam.errors import PolcamError
-
     if not has_display():
         raise PolcamError("no display to open the native Rerun viewer on (DISPLAY and WAYLAND_DISPLAY "
                           "are unset): use the web viewer instead (polcam view --web, "

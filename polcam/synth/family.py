@@ -12,7 +12,7 @@ of seeds (the ``validation`` split, fixed) and reported on another (the
 * **materials**: 1 to 4 per object, the object split into solid Voronoi
   cells (:class:`MaterialTexture`); each material is a public-domain
   photograph used as albedo (the ones the demosaicing trains on,
-  :mod:`polcam.demosaicing.photos`: linearised, projected along an axis,
+  :mod:`polcam.synth.photos`: linearised, projected along an axis,
   rescaled and sometimes desaturated), achromatic (grey to white), pale (a
   faint tint) or saturated;
 * **specular**: none on 15 % of scenes (matte), else Blinn-Phong strength
@@ -68,7 +68,10 @@ from typing import Any
 
 import numpy as np
 
+from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import PolcamError
+from polcam.polarimetry import dolp
+from polcam.synth.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo
 from polcam.synth.render import SceneSpec, Texture, render
 
 __all__ = ["SPLITS", "TEST_SEED_MIN", "SHAPES", "PHOTOS", "MaterialTexture", "FamilyScene",
@@ -96,8 +99,6 @@ _HEADROOM = 64.0
 @lru_cache(maxsize=len(PHOTOS))
 def _photo(name: str) -> np.ndarray:
     """A photograph as linear RGB in [0, 1] (sRGB decoded), (H, W, 3) float32."""
-    from polcam.demosaicing.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo
-
     assert name in TRAINING_PHOTOS + VALIDATION_PHOTOS
     c = load_photo(name).astype(np.float64)
     lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
@@ -383,8 +384,6 @@ def _specs(p: dict[str, Any]) -> list[SceneSpec]:
 def _camera(raw_clean: np.ndarray, layout: str, rng: np.random.Generator, p: dict[str, Any]) -> np.ndarray:
     """Noise, clipping and quantisation of a raw mosaic, then the default demosaicing at the
     polarizer-cell resolution (``polcam process``'s default), clipped to [0, 1]."""
-    from polcam.demosaicing import demosaic
-
     fw = p["full_well"]
     e = rng.poisson(np.maximum(raw_clean, 0.0) * fw).astype(np.float64)
     e += rng.normal(0.0, p["read_noise"], size=e.shape)
@@ -427,9 +426,6 @@ def render_family(seed: int, *, size: int = 128) -> FamilyScene:
     PolcamError
         A bad seed or size.
     """
-    from polcam.demosaicing import mosaic_stack
-    from polcam.polarimetry import dolp
-
     if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or size < 16 or size % 2:
         raise PolcamError(f"size {size!r}: expected an even integer, at least 16 (the sensor is twice that, "
                           "a whole number of 4 x 4 IMX250MYR cells)")

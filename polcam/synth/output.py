@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from polcam.errors import FrameWriteError, LayoutError, PolcamError
+from polcam.frame import Frame
+from polcam.io import atomic_path, atomic_write, write_frame, write_image
 from polcam.mosaic import ANGLES, Layout, parse_layout
 
 if TYPE_CHECKING:
@@ -121,8 +123,6 @@ def write_scene(rendered: Rendered, out_dir: str | PathLike[str], *, bit_depth: 
     FrameWriteError
         A bad ``bit_depth`` or an unwritable folder.
     """
-    from polcam.io import atomic_write, write_image
-
     out = Path(out_dir)
     if not (isinstance(bit_depth, (int, np.integer)) and 8 <= bit_depth <= 16):
         raise FrameWriteError(f"bit_depth {bit_depth!r}: expected an integer in 8..16", path=out)
@@ -159,8 +159,6 @@ def _write_pngs(out: Path, mask: np.ndarray, stack: np.ndarray) -> dict[str, Pat
     """``mask.png`` (255 on the object) and ``preview.png`` (the mean over angles, sRGB-encoded), 8-bit."""
     import cv2
 
-    from polcam.io import atomic_path
-
     def _png(name: str, img: np.ndarray) -> Path:
         target = out / name
         with atomic_path(target) as tmp:
@@ -181,9 +179,6 @@ def _srgb_encode(linear: np.ndarray) -> np.ndarray:
 
 def _write_raw(out: Path, stack: np.ndarray, bit_depth: int) -> dict[str, Path]:
     """``raw_<layout>.png`` and its sidecar for each of :data:`RAW_LAYOUTS`: the mosaic in counts of ``bit_depth`` bits."""
-    from polcam.frame import Frame
-    from polcam.io import write_frame
-
     written = {}
     for name in RAW_LAYOUTS:
         lay = parse_layout(name)

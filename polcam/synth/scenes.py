@@ -21,14 +21,14 @@ Usage::
     from polcam.synth.render import render
     r = render(scene("Bunny4"), size=256, seed=0)
 
-``python -m polcam.synth.scenes [--size 256] [--seed 0]`` prints the measured
+``polcam bench scenes [--size 256] [--seed 0]`` prints the measured
 statistics of every scene as a Markdown table (docs/synthetic.md).
 """
 
 from __future__ import annotations
 
 from polcam.errors import PolcamError
-from polcam.synth.render import SceneSpec, Texture
+from polcam.synth.render import SceneSpec, Texture, render
 
 __all__ = ["BUNNY", "SCENES", "STRESS", "SENSOR", "scene", "scene_names", "statistics_table"]
 
@@ -222,8 +222,6 @@ def statistics_table(*, size: int = 256, seed: int = 0) -> str:
     str
         The table, one line per scene.
     """
-    from polcam.synth.render import render
-
     lines = [
         f"| scene (size {size}, seed {seed}) | saturated fraction | specular / diffuse | object pixels | seconds |",
         "|---|---:|---:|---:|---:|",
@@ -236,19 +234,3 @@ def statistics_table(*, size: int = 256, seed: int = 0) -> str:
             f"{i['object_pixels'] / size**2:.1%} | {i['seconds']:.2f} |"
         )
     return "\n".join(lines)
-
-
-def _main(argv: list[str] | None = None) -> int:
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="python -m polcam.synth.scenes",
-                                     description="Measure the paper's synthetic scenes.")
-    parser.add_argument("--size", type=int, default=256, help="image side in pixels (default 256)")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    args = parser.parse_args(argv)
-    print(statistics_table(size=args.size, seed=args.seed))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(_main())

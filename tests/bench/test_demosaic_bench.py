@@ -13,11 +13,11 @@ from polcam.bench.demosaic import (
     AOLP_MIN_DOLP,
     format_markdown,
     load_real_stack,
-    main,
     polanalyser_order,
     quality,
     run,
 )
+from polcam.cli import main
 from polcam.errors import MethodError
 from polcam.synth.patterns import SCENES, stack_from_stokes
 
@@ -92,7 +92,7 @@ def test_unknown_method_is_refused() -> None:
 
 def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "rows.json"
-    assert main(["--size", "32", "--methods", "bilinear", "eari", "--layouts", "imx250mzr",
+    assert main(["bench", "demosaic", "--size", "32", "--methods", "bilinear", "eari", "--layouts", "imx250mzr",
                  "--no-speed", "--json", str(out)]) == 0
     text = capsys.readouterr().out
     assert "| smooth | eari |" in text
@@ -111,7 +111,7 @@ def test_polcam_bench_demosaic_is_the_same_command(tmp_path: Path, capsys: pytes
     # the folder of real stacks under either spelling; a missing one is an error naming it
     assert polcam_main(["bench", "demosaic", "--data", str(tmp_path / "nowhere")]) == 2
     assert "nowhere: not a folder" in capsys.readouterr().err
-    assert main(["--data-dir", str(tmp_path / "nowhere")]) == 2
+    assert polcam_main(["bench", "demosaic", "--data-dir", str(tmp_path / "nowhere")]) == 2
 
 
 def test_real_stack_loads(shared_data: Path) -> None:

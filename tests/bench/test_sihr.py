@@ -160,11 +160,13 @@ def test_format_table():
 
 
 def test_main(tmp_path, capsys):
+    from polcam.cli import main
+
     _write_dataset(tmp_path, np.random.default_rng(6))
-    assert sihr.main(["--data", str(tmp_path), "--methods", "shen09,shen13"]) == 0
+    assert main(["bench", "sihr", "--data", str(tmp_path), "--methods", "shen09,shen13"]) == 0
     out = capsys.readouterr().out
     assert "| shen09 |" in out and "| shen13 |" in out and "| yang10 |" not in out
-    assert sihr.main(["--data", str(tmp_path / "nowhere"), "--methods", "shen09"]) == 2
+    assert main(["bench", "sihr", "--data", str(tmp_path / "nowhere"), "--methods", "shen09"]) == 2
     assert "animals.png" in capsys.readouterr().err
 
 

@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from polcam.bench.calibration import _scene, make_calibration, stokes_errors
 from polcam.calibration.apply import apply_calibration, correct_stack, effective_model, fill_defects
-from polcam.calibration.bench import _scene, make_calibration, stokes_errors
 from polcam.calibration.model import nominal_orientation
-from polcam.calibration.simulate import ImperfectSensor
 from polcam.calibration.store import Calibration, CalibrationError
 from polcam.demosaicing import demosaic
 from polcam.frame import Frame
 from polcam.mosaic import parse_layout
 from polcam.polarimetry import stokes
+from polcam.synth.sensor import ImperfectSensor
 
 
 def true_calibration(sensor: ImperfectSensor, *, defects: np.ndarray | None = None) -> Calibration:

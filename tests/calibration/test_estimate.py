@@ -1,6 +1,6 @@
 """Tests of polcam.calibration.estimate: dark, flat and polarizer calibration against planted truth.
 
-The synthetic sensor (polcam.calibration.simulate) has gain spread 5 %, extinction
+The synthetic sensor (polcam.synth.sensor) has gain spread 5 %, extinction
 ratios 50..300, orientation offsets of +1.5/-2/+2.5/-1 degrees per angle class plus
 1 degree scatter, dark offsets of 3 counts RMS, 0.3 % hot pixels (80-800 counts),
 12 bits, 20000 e- full well and 4 e- read noise (0.8 counts).  Frames used:
@@ -25,9 +25,9 @@ from polcam.calibration.estimate import (
     robust_sigma,
 )
 from polcam.calibration.model import nominal_orientation
-from polcam.calibration.simulate import ImperfectSensor
 from polcam.calibration.store import CalibrationError
 from polcam.frame import Frame
+from polcam.synth.sensor import ImperfectSensor
 
 SIZE = 32
 DARK_N, FLAT_N, ANGLES_N, PER_ANGLE = 128, 512, 16, 32

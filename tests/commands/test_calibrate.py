@@ -1,4 +1,4 @@
-"""Tests of polcam.commands.calibrate and polcam.calibration.frames: ``polcam calibrate dark|flat|polarizer`` on frames in folders and on
+"""Tests of polcam.commands.calibrate and polcam.acquisition.calibration_frames: ``polcam calibrate dark|flat|polarizer`` on frames in folders and on
 frames grabbed live from a camera (the replay camera playing those folders, and Aravis' Fake camera)."""
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from polcam.calibration.frames import angle_from_name, angle_of
+from polcam.acquisition.calibration_frames import angle_from_name, angle_of
 from polcam.commands.calibrate import add_calibrate_parser, main
-from polcam.calibration.simulate import ImperfectSensor
+from polcam.synth.sensor import ImperfectSensor
 from polcam.calibration.store import CalibrationError, load_calibration
 from polcam.camera import aravis_available
 from polcam.io import read_frame, write_frame
@@ -343,7 +343,7 @@ def test_grabber_takes_no_frame_exposed_before_enter(folders, tmp_path, monkeypa
     # a free-running camera (replay at a frame rate) keeps exposing while the polarizer turns: the grabber
     # stops it at every prompt, so every frame of an angle was taken after that angle's Enter
     from polcam.camera import ReplayCamera
-    from polcam.calibration.frames import FrameGrabber
+    from polcam.acquisition.calibration_frames import FrameGrabber
 
     root, _ = folders
     enter_ns: list[int] = []

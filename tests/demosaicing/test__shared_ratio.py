@@ -149,7 +149,7 @@ def test_default_colour_stage_is_the_shared_ratio() -> None:
     rng = np.random.default_rng(2)
     raw = rng.uniform(0.1, 0.9, size=(32, 40)).astype(np.float32)
     p = lm.plan(MYR, *raw.shape)
-    bank = lm.apply_bank(np.ascontiguousarray(lm._transform(raw, p.transform)), lm._weights()[p.key], p.shift, 3)
+    bank = lm.apply_bank(np.ascontiguousarray(lm._transform(raw, p.transform)), lm.shipped_weights()[p.key], p.shift, 3)
     bank = np.ascontiguousarray(lm._untransform(bank[list(p.relabel)], p.transform))
     expected = shared_ratio_stage(raw, bank, MYR, common_sigma=float(lm.LMMSE_PARAMS["common_sigma"]),
                                   offset_sigma=float(lm.LMMSE_PARAMS["offset_sigma"]),

@@ -10,7 +10,7 @@ import pytest
 
 import polcam.demosaicing.lmmse as lm
 from polcam.demosaicing import demosaic, mosaic_stack
-from polcam.demosaicing.training import training_stack
+from polcam.bench.lmmse_training import training_stack
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 from polcam.polarimetry import aolp, dolp
@@ -96,7 +96,7 @@ def test_bank_matches_a_per_pixel_reference(color: bool) -> None:
 def test_shipped_weights_keep_the_constraints(key: str) -> None:
     """Own samples kept; each output's weights sum to 1 on its own lattice and 0 on the others;
     first and second moments about the output pixel vanish (so quadratic images come back)."""
-    weights = lm._weights()[key].astype(np.float64)
+    weights = lm.shipped_weights()[key].astype(np.float64)
     color = key.startswith("color")
     canon = parse_layout(lm.CANONICAL[(color, key.split("_")[1])])
     channels = 3 if color else 1
@@ -141,7 +141,7 @@ def test_affine_images_come_back(lay: Layout) -> None:
     raw = mosaic_stack(truth, layout=lay)
     h_, w_ = raw.shape
     p = lm.plan(lay, h_, w_)
-    bank = lm.apply_bank(np.ascontiguousarray(lm._transform(raw, p.transform)), lm._weights()[p.key],
+    bank = lm.apply_bank(np.ascontiguousarray(lm._transform(raw, p.transform)), lm.shipped_weights()[p.key],
                          p.shift, 3 if lay.is_color else 1)
     bank = lm._untransform(bank[list(p.relabel)], p.transform)
     bank = bank if lay.is_color else bank[..., 0]

@@ -1,4 +1,4 @@
-"""polcam.io.decoders: declared sizes are bounded before any allocation of that size."""
+"""polcam.io.decoders: one decoder per extension, header sizes, declared sizes bounded before any allocation."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from polcam.errors import FrameReadError
+from polcam.frame import Frame
 from polcam.io import read_frame, write_frame
 from polcam.io.decoders import MAX_PIXELS
-from polcam.frame import Frame
+from polcam.mosaic import parse_layout
 
 
 def test_a_pgm_header_of_60000_squared_is_refused_unread(tmp_path):
@@ -36,3 +37,35 @@ def test_the_limit_can_be_raised_and_lowered(tmp_path):
     with pytest.raises(FrameReadError, match="3072 pixels, more than the limit of 3000"):
         read_frame(path, max_pixels=3000)
     assert read_frame(path, max_pixels=3072).mosaic.shape == (48, 64)
+
+
+def test_one_decoder_per_extension_and_unknown_ones_refused(tmp_path):
+    from polcam.io.decoders import DECODERS, RAW_EXTENSIONS, decoder_for
+
+    listed = [ext for d in DECODERS for ext in d.extensions]
+    assert len(listed) == len(set(listed)) and tuple(listed) == RAW_EXTENSIONS
+    assert decoder_for(tmp_path / "a.TIF").name == "OpenImageIO"
+    assert decoder_for(tmp_path / "a.pgm").name == "PNM"
+    assert decoder_for(tmp_path / "a.bin").sized_by_metadata
+    assert decoder_for(tmp_path / "a.NEF").name == "LibRaw"
+    with pytest.raises(FrameReadError, match=r"a\.jpg.*unsupported file type '\.jpg'; supported: \.png"):
+        decoder_for(tmp_path / "a.jpg")
+
+
+@pytest.mark.parametrize("ext", [".png", ".tif", ".pgm", ".npy", ".raw"])
+def test_each_decoder_reads_the_size_its_header_declares(tmp_path, ext):
+    from polcam.io.decoders import decoder_for
+    from polcam.io.readers import declared_size
+
+    mosaic = (np.arange(6 * 10, dtype=np.uint16).reshape(6, 10) * 7) % 4096
+    if ext == ".pgm":   # polcam writes no PGM: a 12-bit P5 file by hand (maxval 4095, big-endian words)
+        path = tmp_path / "f.pgm"
+        path.write_bytes(b"P5\n# a comment\n10 6\n4095\n" + mosaic.astype(">u2").tobytes())
+        (tmp_path / "f.json").write_text(json.dumps({"layout": "imx250mzr"}))
+    else:
+        path = write_frame(tmp_path / f"f{ext}", Frame(mosaic=mosaic, layout="imx250mzr", bit_depth=12,
+                                                      white_level=4095))
+    assert decoder_for(path).size(path) == declared_size(path) == (10, 6)
+    frame = read_frame(path)
+    np.testing.assert_array_equal(frame.mosaic, mosaic)
+    assert frame.bit_depth == 12 and frame.layout == parse_layout("imx250mzr")

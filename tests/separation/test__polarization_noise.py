@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from polcam.separation._polarization_noise import _KSIG, _axis_debias, _debias, _prior_removal, _reduction
+from polcam.separation._polarization_noise import _KSIG, _debias, axis_debias, noise_reduction, prior_removal
 
 
 def test_colour_prior_removal_is_shrunk_by_the_noise():
@@ -19,12 +19,12 @@ def test_colour_prior_removal_is_shrunk_by_the_noise():
     for size, lo, hi in ((0.5 * _KSIG * sd_ic, 0.0, 1e-6), (10 * _KSIG * sd_ic, 0.98, 0.995)):
         t = size / np.sqrt(3.0)                           # a removal of norm `size` along white
         sf = diffuse - t
-        kept = _prior_removal(diffuse, sf, sig).sum(axis=-1) / (3 * t)
+        kept = prior_removal(diffuse, sf, sig).sum(axis=-1) / (3 * t)
         assert np.all((kept >= lo) & (kept <= hi))
     # never more than the prior asked for, never negative (sf above the diffuse removes nothing)
     rng = np.random.default_rng(0)
     sf = diffuse + rng.normal(0, 0.05, diffuse.shape).astype(np.float32)
-    out = _prior_removal(diffuse, sf, sig)
+    out = prior_removal(diffuse, sf, sig)
     assert np.all(out >= 0) and np.all(out <= diffuse - np.minimum(sf, diffuse) + 1e-7)
 
 
@@ -42,7 +42,7 @@ def _smoothed_axis(q, u, k=3):
     qq, uu = qs.sum(axis=-1), us.sum(axis=-1)
     nn = np.hypot(qq, uu)
     c2, s2 = (qq / nn)[..., None], (uu / nn)[..., None]
-    return c2, s2, qs * c2 + us * s2, _reduction(k)
+    return c2, s2, qs * c2 + us * s2, noise_reduction(k)
 
 
 def test_axis_debias_keeps_a_coherent_amplitude_unbiased():
@@ -52,7 +52,7 @@ def test_axis_debias_keeps_a_coherent_amplitude_unbiased():
     q, u = _noisy_stokes(amp, sigma)
     sig = np.full(q.shape, sigma, np.float32)
     c2, s2, smoothed, red = _smoothed_axis(q, u)
-    est = _axis_debias(q, u, c2, s2, smoothed, sig, red, "shrink")
+    est = axis_debias(q, u, c2, s2, smoothed, sig, red, "shrink")
     assert abs(float(est.mean()) / amp - 1.0) < 0.03
     shrunk = _debias(np.hypot(q, u), sig, "shrink")
     assert float(shrunk.mean()) / amp < 0.9                 # what the axis saves
@@ -65,12 +65,12 @@ def test_axis_debias_leaves_noise_shrunk():
     q, u = _noisy_stokes(0.0, sigma, seed=1)
     sig = np.full(q.shape, sigma, np.float32)
     c2, s2, smoothed, red = _smoothed_axis(q, u)
-    est = _axis_debias(q, u, c2, s2, smoothed, sig, red, "shrink")
+    est = axis_debias(q, u, c2, s2, smoothed, sig, red, "shrink")
     raw = np.hypot(q, u)
     assert float(est.mean()) < 0.25 * float(raw.mean())
     assert np.all(est >= 0) and np.all(est <= raw + 1e-7)
     # and where the axis is known the orthogonal part, noise, is debiased as one component
-    rice = _axis_debias(q, u, c2, s2, np.full_like(q, 1.0), sig, red, "rice")
+    rice = axis_debias(q, u, c2, s2, np.full_like(q, 1.0), sig, red, "rice")
     par = q * c2 + u * s2
     assert np.allclose(rice, np.hypot(par, np.sqrt(np.maximum((u * c2 - q * s2) ** 2 - sigma**2, 0))), atol=1e-7)
 
@@ -80,7 +80,7 @@ def test_reduction_is_the_blurs_noise_factor():
     x = rng.normal(0, 1, (400, 400)).astype(np.float32)
     for k in (3, 5):
         got = float(cv2.GaussianBlur(x, (k, k), 0)[10:-10, 10:-10].std())
-        assert abs(got / _reduction(k) - 1) < 0.03
+        assert abs(got / noise_reduction(k) - 1) < 0.03
 
 
 def test_coherent_prior_removal_is_kept_whole():
@@ -94,21 +94,21 @@ def test_coherent_prior_removal_is_kept_whole():
     t = 5 * sd_ic / np.sqrt(3.0)
     sf = (diffuse - t + rng.normal(0, 0.3 * sd_ic, diffuse.shape)).astype(np.float32)
     want = diffuse - np.minimum(sf, diffuse)
-    plain = _prior_removal(diffuse, sf, sig)
-    kept = _prior_removal(diffuse, sf, sig, smooth=3)
+    plain = prior_removal(diffuse, sf, sig)
+    kept = prior_removal(diffuse, sf, sig, smooth=3)
     assert float(plain.mean()) < 0.85 * float(want.mean())
     np.testing.assert_allclose(kept, want, atol=1e-7)
     noise = (diffuse + rng.normal(0, sd_ic / np.sqrt(3.0), diffuse.shape)).astype(np.float32)
-    both = _prior_removal(diffuse, noise, sig, smooth=3)
-    assert float(both.mean()) <= float(_prior_removal(diffuse, noise, sig).mean()) * 1.05 + 1e-9
+    both = prior_removal(diffuse, noise, sig, smooth=3)
+    assert float(both.mean()) <= float(prior_removal(diffuse, noise, sig).mean()) * 1.05 + 1e-9
     assert float(both.mean()) < 0.2 * float((diffuse - np.minimum(noise, diffuse)).mean())
 
 
 def test_axis_and_coherence_switches_are_continuous():
-    # a smoothed amplitude swept through the axis test's threshold (_COHERENT_KSIG deviations): the
+    # a smoothed amplitude swept through the axis test's threshold (COHERENT_KSIG deviations): the
     # estimate moves from the garrote's to the axis-known one gradually, never by a step (a hard
     # switch jumped by the whole difference, 0.02 of Imin on a rendered scene, under a 1e-7 change)
-    from polcam.separation._polarization_noise import _COHERENT_KSIG
+    from polcam.separation._polarization_noise import COHERENT_KSIG
 
     sigma, red = 0.01, 0.3
     n = 2001
@@ -116,9 +116,9 @@ def test_axis_and_coherence_switches_are_continuous():
     u = np.full((1, n, 1), 0.009, np.float32)
     sig = np.full((1, n, 1), sigma, np.float32)
     c2, s2 = np.ones((1, n, 1), np.float32), np.zeros((1, n, 1), np.float32)
-    dev = np.linspace(_COHERENT_KSIG - 1.5, _COHERENT_KSIG + 1.5, n, dtype=np.float32)
+    dev = np.linspace(COHERENT_KSIG - 1.5, COHERENT_KSIG + 1.5, n, dtype=np.float32)
     smoothed = (dev * red * sigma).reshape(1, n, 1)
-    est = _axis_debias(q, u, c2, s2, smoothed, sig, red, "shrink").ravel()
+    est = axis_debias(q, u, c2, s2, smoothed, sig, red, "shrink").ravel()
     garrote = float(_debias(np.hypot(q, u), sig, "shrink").ravel()[0])
     known = float(np.hypot(q[0, 0, 0], _debias(np.abs(u), sig, "shrink", components=1).ravel()[0]))
     assert abs(known - garrote) > 0.005                     # the two estimates differ: a step would show
@@ -127,12 +127,12 @@ def test_axis_and_coherence_switches_are_continuous():
     # the colour prior's coherent-removal check, swept the same way
     h = 9
     var_sig = np.full((h, h, 3), 0.004, np.float32)
-    sd = float(np.sqrt(0.5 * 3 * 0.004**2) * _reduction(3))
+    sd = float(np.sqrt(0.5 * 3 * 0.004**2) * noise_reduction(3))
     outs = []
-    for k in np.linspace(_COHERENT_KSIG - 1.5, _COHERENT_KSIG + 1.5, 301):
+    for k in np.linspace(COHERENT_KSIG - 1.5, COHERENT_KSIG + 1.5, 301):
         diffuse = np.full((h, h, 3), 0.5, np.float32)
         sf = diffuse - np.float32(k * sd / np.sqrt(3.0))
-        outs.append(float(_prior_removal(diffuse, sf, var_sig, smooth=3)[4, 4, 0]) / (k * sd / np.sqrt(3.0)))
+        outs.append(float(prior_removal(diffuse, sf, var_sig, smooth=3)[4, 4, 0]) / (k * sd / np.sqrt(3.0)))
     outs = np.array(outs)
     assert outs[0] < 0.8 and outs[-1] == pytest.approx(1.0, abs=1e-5)
     assert np.abs(np.diff(outs)).max() < 0.05

@@ -152,7 +152,7 @@ def test_diffuse_bounds_and_one_specular_colour():
 
 
 def test_noise_estimate_matches_the_planted_deviation():
-    from polcam.separation._polarization_noise import _stokes_noise
+    from polcam.separation._polarization_noise import stokes_noise
 
     rng = np.random.default_rng(5)
     d = _scene(96, 128)
@@ -160,15 +160,15 @@ def test_noise_estimate_matches_the_planted_deviation():
     st = _stack(d, spec, (1, 1, 1), rho_s=0.6, phi_s=0.4)
     sigma_i = 0.01
     noisy = st + rng.normal(0.0, sigma_i, st.shape)
-    sig = _stokes_noise(noisy.astype(np.float32), noisy.mean(0).astype(np.float32))
+    sig = stokes_noise(noisy.astype(np.float32), noisy.mean(0).astype(np.float32))
     # q = (I0 - I90) / 2 has deviation sigma_I / sqrt 2
     np.testing.assert_allclose(np.median(sig), sigma_i / np.sqrt(2), rtol=0.1)
     # a noise-free stack, highlights and all: no noise
-    assert np.max(_stokes_noise(st.astype(np.float32), st.mean(0).astype(np.float32))) < 1e-6
+    assert np.max(stokes_noise(st.astype(np.float32), st.mean(0).astype(np.float32))) < 1e-6
     # a stack whose four images have unequal gains breaks I0 + I90 = I45 + I135 everywhere, but the
     # spatial high-pass of q and u sees no noise: the estimate stays near zero
     gains = np.array([1.03, 1.0, 0.98, 1.0])[:, None, None, None]
-    assert np.median(_stokes_noise((st * gains).astype(np.float32), st.mean(0).astype(np.float32))) < 2e-3
+    assert np.median(stokes_noise((st * gains).astype(np.float32), st.mean(0).astype(np.float32))) < 2e-3
 
 
 def test_noise_is_not_removed_as_polarized_light():

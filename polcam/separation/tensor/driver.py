@@ -34,6 +34,7 @@ import numpy as np
 from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.parallel import blas_limit, map_workers, submit_workers
+from polcam.polarimetry import imin
 from polcam.separation._common import finish_diffuse
 from polcam.separation._registry import method_spec
 from polcam.separation.tensor.ialm import solve_tiles
@@ -47,7 +48,7 @@ from polcam.separation.tensor.operators import (
 )
 from polcam.separation.tensor.options import DEVICE_BATCH, INIT_PARALLEL_PIXELS, Plan, default_lam, resolve
 from polcam.separation.tensor.tiling import blend, tile_batch, tile_spans
-from polcam.polarimetry import imin
+from polcam.separation.tensor.torch_backend import device_batch
 
 __all__ = ["separate_tensor", "initial_diffuse", "warm_up"]
 
@@ -199,8 +200,6 @@ def _solve(d0: Any, tw: Any, plan: Plan) -> tuple[np.ndarray, float, list[dict[s
 
     xp = namespace(d0)
     if xp.name == "torch":
-        from polcam.separation.tensor.torch_backend import device_batch
-
         per_tile = n4 * 12 * n1 * n2 * d0.element_size()
         rows_per = max(1, device_batch(len(ys) * len(xs), per_tile, d0.device, DEVICE_BATCH) // len(xs))
         results, records = [], []

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from polcam._xp import namespace
+from polcam.separation.tensor import numpy_backend, torch_backend
 from polcam.separation.tensor.operators import fold, phase_project
 
 __all__ = ["ialm", "solve_tiles", "backend_for"]
@@ -28,10 +29,7 @@ __all__ = ["ialm", "solve_tiles", "backend_for"]
 def backend_for(a: Any) -> Any:
     """The backend of an array: :mod:`.numpy_backend` for numpy, :mod:`.torch_backend` for a tensor."""
     if namespace(a).name == "numpy":
-        from polcam.separation.tensor import numpy_backend
-
         return numpy_backend
-    from polcam.separation.tensor import torch_backend
 
     return torch_backend
 

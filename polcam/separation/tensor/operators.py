@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from polcam.errors import MethodError
 from polcam._xp import namespace
+from polcam.errors import MethodError
 from polcam.separation._illuminant import estimate_illuminant as _checked
 from polcam.separation._illuminant import projected_chromaticity
 

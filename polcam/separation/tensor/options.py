@@ -17,6 +17,7 @@ from polcam.errors import MethodError
 from polcam.parallel import MAX_AUTO_WORKERS, default_workers
 from polcam.separation._option_types import describe, matches
 from polcam.separation._tsvt import SOLVERS
+from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = [
     "DEFAULTS",
@@ -181,7 +182,6 @@ def resolve(shape: tuple[int, ...], variant: str, options: dict[str, Any]) -> Pl
             raise MethodError(f"device {opt['device']!r}: expected None (numpy) or a torch device name")
         if opt["solver"] != "fast":
             raise MethodError(f"device {opt['device']!r} runs the fast solver; got solver={opt['solver']!r}")
-        from polcam.separation.tensor.torch_backend import check_device
 
         check_device(opt["device"])
     if not isinstance(opt["imin_bound"], (bool, np.bool_)):

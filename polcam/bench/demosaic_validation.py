@@ -1,21 +1,21 @@
 """Model selection of the ``lmmse`` demosaicing on a validation set polcam renders itself.
 
-Run ``python -m polcam.demosaicing.validation`` to redo every choice of the shipped
+Run ``polcam bench demosaic-validation`` to redo every choice of the shipped
 ``lmmse`` (the ridge of the fit, the second stage of colour and of mono layouts and its
 Gaussian): it prints one table row per variant and the variant it picks.
 
 The validation set (:func:`validation_scenes`) is polcam's own and disjoint from the
 training set:
 
-* ``rendered``: scenes of :func:`polcam.demosaicing.training.training_stack` drawn from
+* ``rendered``: scenes of :func:`polcam.bench.lmmse_training.training_stack` drawn from
   :data:`VALIDATION_SEED` (the shipped weights are trained from seed 2024), mosaicked with
   the training's raw noise model;
 * ``patterns``: the four scenes of :mod:`polcam.synth.patterns` (smooth, textured, edges,
   sweep) built from :data:`VALIDATION_SEED` (the benchmark reports them from seed 0),
   quantised to 16 bits like the benchmark;
 * ``photos``: crops of the CC0 photographs of
-  :data:`polcam.demosaicing.photos.VALIDATION_PHOTOS` (none of them is a training photograph)
-  with simulated polarization (:func:`polcam.demosaicing.photos.photo_stack`), mosaicked with
+  :data:`polcam.synth.photos.VALIDATION_PHOTOS` (none of them is a training photograph)
+  with simulated polarization (:func:`polcam.synth.photos.photo_stack`), mosaicked with
   the training's raw noise model.
 
 The real stacks of the shared data folder (CC BY-NC or unlicensed) are never read here:
@@ -31,25 +31,23 @@ weights.
 
 from __future__ import annotations
 
-import argparse
 import itertools
-import sys
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
 
 from polcam.bench.demosaic import quality
-from polcam.demosaicing._registry import demosaic, mosaic_stack
-from polcam.demosaicing.lmmse import LMMSE_PARAMS, _weights, run_lmmse
+from polcam.bench.lmmse_training import LUMA, fit_all, gram_sums, noisy_raw, training_stack
+from polcam.demosaicing import demosaic, mosaic_stack
+from polcam.demosaicing.lmmse import LMMSE_PARAMS, run_lmmse, shipped_weights
 from polcam.demosaicing.lmmse_eari import BLEND_PARAMS, run_blend
-from polcam.demosaicing.photos import VALIDATION_PHOTOS, photo_stack
-from polcam.demosaicing.training import LUMA, _noisy, fit_all, gram_sums, training_stack
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 from polcam.synth.patterns import SCENES, make_scene
+from polcam.synth.photos import VALIDATION_PHOTOS, photo_stack
 
-__all__ = ["VALIDATION_SEED", "evaluate", "main", "score", "select", "select_blend", "select_shared", "stage_params",
+__all__ = ["VALIDATION_SEED", "evaluate", "score", "select", "select_blend", "select_shared", "stage_params",
            "validation_scenes"]
 
 #: Seed of the validation scenes (training: 2024; the benchmark's synthetic scenes: 0).
@@ -58,11 +56,11 @@ VALIDATION_SEED = 1
 LAYOUTS = ("imx250myr", "imx250mzr")
 #: Ridges tried (relative to the mean diagonal of the Gram matrix).
 RIDGES = (1e-3, 3e-3, 1e-2, 3e-2, 1e-1)
-#: Moment orders tried (:func:`polcam.demosaicing.training.fit_bank`).
+#: Moment orders tried (:func:`polcam.bench.lmmse_training.fit_bank`).
 MOMENTS = (1, 2)
-#: Numbers of pattern scenes (:func:`polcam.demosaicing.training.pattern_stack`) added to the training set.
+#: Numbers of pattern scenes (:func:`polcam.bench.lmmse_training.pattern_stack`) added to the training set.
 PATTERNS = (0, 50)
-#: Numbers of photograph crops (:func:`polcam.demosaicing.photos.photo_stack`) added to the training set.
+#: Numbers of photograph crops (:func:`polcam.synth.photos.photo_stack`) added to the training set.
 PHOTOS = (0, 80)
 #: Blend thresholds and Gaussians tried for ``lmmse-eari`` (:func:`select_blend`).
 BLEND_TAUS = (0.03, 0.05, 0.1, 0.2, 0.4)
@@ -120,7 +118,7 @@ def validation_scenes(*, color: bool, seed: int = VALIDATION_SEED, rendered: int
         stack = training_stack(rng, size)
         if not color:
             stack = np.tensordot(stack, LUMA, axes=([3], [0])).astype(np.float32)
-        raw = np.clip(_noisy(rng, mosaic_stack(stack, layout=layout)), 0, 1)
+        raw = np.clip(noisy_raw(rng, mosaic_stack(stack, layout=layout)), 0, 1)
         out.append(("rendered", f"rendered-{i}", stack, raw))
     for name in SCENES:
         stack = make_scene(name, height=pattern_size, width=pattern_size, seed=seed, color=color).stack
@@ -132,7 +130,7 @@ def validation_scenes(*, color: bool, seed: int = VALIDATION_SEED, rendered: int
             stack = photo_stack(rng, size, photos=(photo,), scale=(0.5, 1.0))
             if not color:
                 stack = np.tensordot(stack, LUMA, axes=([3], [0])).astype(np.float32)
-            raw = np.clip(_noisy(rng, mosaic_stack(stack, layout=layout)), 0, 1)
+            raw = np.clip(noisy_raw(rng, mosaic_stack(stack, layout=layout)), 0, 1)
             out.append(("photos", f"{photo}-{i}", stack, raw))
     return out
 
@@ -264,7 +262,7 @@ def select_shared(*, commons: Sequence[float] = SHARED_COMMONS, offsets: Sequenc
                          {"color_stage": "shared-ratio", "common_sigma": common, "offset_sigma": offset,
                           "residual_sigma": residual},
                          {"common": common, "offset": offset, "residual": residual}))
-    weights = _weights()
+    weights = shipped_weights()
     for name, upd, cols in variants:
         params = {**LMMSE_PARAMS, **upd}
         res = evaluate(lambda raw, p=params: run_lmmse(raw, lay, weights=weights, params=p), val)
@@ -287,55 +285,3 @@ def format_markdown(rows: Sequence[dict[str, Any]]) -> str:
         best = max((r for r in sel if r["ridge"] is not None), key=lambda r: r["score"])
         lines += ["", f"best {kind}: {best['variant']}", ""]
     return "\n".join(lines)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command-line entry: run :func:`select` and print the tables."""
-    ap = argparse.ArgumentParser(prog="python -m polcam.demosaicing.validation",
-                                 description="Model selection of the lmmse demosaicing on polcam's own "
-                                             "validation scenes.")
-    ap.add_argument("--scenes", type=int, default=150, help="training scenes (default 150)")
-    ap.add_argument("--size", type=int, default=160, help="training scene side (default 160)")
-    ap.add_argument("--seed", type=int, default=2024, help="training seed (default 2024)")
-    ap.add_argument("--ridges", type=float, nargs="+", default=list(RIDGES), help="ridges tried")
-    ap.add_argument("--moments", type=int, nargs="+", default=list(MOMENTS), help="moment orders tried")
-    ap.add_argument("--patterns", type=int, nargs="+", default=list(PATTERNS),
-                    help="pattern scenes added to the training set (0 and/or one count)")
-    ap.add_argument("--photos", type=int, nargs="+", default=list(PHOTOS),
-                    help="photograph crops added to the training set (0 and/or one count)")
-    ap.add_argument("--kinds", nargs="+", default=["color", "mono"], choices=("color", "mono"),
-                    help="kinds of layout to select for")
-    ap.add_argument("--blend", action="store_true",
-                    help="select lmmse-eari's blend (with the shipped lmmse weights) instead of the banks")
-    ap.add_argument("--taus", type=float, nargs="+", default=list(BLEND_TAUS), help="blend thresholds tried")
-    ap.add_argument("--sigmas", type=float, nargs="+", default=list(BLEND_SIGMAS), help="blend Gaussians tried")
-    ap.add_argument("--shared", action="store_true",
-                    help="select the shared-ratio second stage of colour lmmse (shipped weights) instead of the banks")
-    ap.add_argument("--commons", type=float, nargs="+", default=list(SHARED_COMMONS),
-                    help="shared-ratio Gaussians of the all-colour ratio tried (pixels)")
-    ap.add_argument("--offsets", type=float, nargs="+", default=list(SHARED_OFFSETS),
-                    help="shared-ratio Gaussians of the colour offsets tried (pixels)")
-    ap.add_argument("--residuals", type=float, nargs="+", default=list(SHARED_RESIDUALS),
-                    help="shared-ratio Gaussians of the colour residual tried (pixels)")
-    ap.add_argument("--stages", nargs="+", default=[f"{m}:{g:g}" for m, g in STAGES],
-                    help="second stages tried, MODE:SIGMA")
-    args = ap.parse_args(argv)
-    if args.seed == VALIDATION_SEED:
-        ap.error(f"--seed {args.seed}: the training seed must differ from the validation seed")
-    if args.shared:
-        rows = select_shared(commons=args.commons, offsets=args.offsets, residuals=args.residuals)
-        sys.stdout.write(format_markdown(rows) + "\n")
-        return 0
-    if args.blend:
-        rows = select_blend(taus=args.taus, sigmas=args.sigmas, kinds=args.kinds)
-        sys.stdout.write(format_markdown(rows) + "\n")
-        return 0
-    stages = [(st.split(':')[0], float(st.split(':')[1])) for st in args.stages]
-    rows = select(scenes=args.scenes, size=args.size, seed=args.seed, ridges=args.ridges, moments=args.moments,
-                  patterns=args.patterns, photos=args.photos, stages=stages, kinds=args.kinds)
-    sys.stdout.write(format_markdown(rows) + "\n")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,11 +1,11 @@
 """Training of the ``lmmse`` filter bank on scenes polcam renders itself.
 
-Run ``python -m polcam.demosaicing.training`` to remake
+Run ``polcam bench train-lmmse`` to remake
 ``polcam/demosaicing/lmmse_weights.npz`` (a few minutes on two cores).  The
 training stacks are drawn from a seeded random generator: scenes polcam renders
 itself (:func:`training_stack`), scenes of :mod:`polcam.synth.patterns`, and crops of
 public-domain / CC0 photographs that ship with scikit-image, given a simulated
-polarization by :mod:`polcam.demosaicing.photos`; so the weights carry no licence
+polarization by :mod:`polcam.synth.photos`; so the weights carry no licence
 that forbids shipping them (docs/methods/demosaic-lmmse.md lists the photographs' licences).
 
 The scenes aim at what real colour-polarization frames contain and what the
@@ -25,7 +25,7 @@ then mild optical blur, clipping at the white level, and raw noise
 targets are the noise-free stacks.  To these the shipped weights add scenes of
 :mod:`polcam.synth.patterns` (:func:`pattern_stack`: smooth, textured, edges, sweep,
 with seeds the benchmark and the validation set do not use) and photograph crops
-(:func:`polcam.demosaicing.photos.photo_stack`, training photographs only).
+(:func:`polcam.synth.photos.photo_stack`, training photographs only).
 
 The fit (:func:`fit_bank`) is constrained least squares: for every output (angle,
 pixel of the 4x4 block, colour), minimise the squared error over all training
@@ -36,41 +36,38 @@ moments of each lattice's weights about the output pixel vanish up to order
 position comes back exactly; 2, the shipped weights: a quadratic one).  A small ridge
 term (``ridge`` times the mean diagonal of the Gram matrix) keeps the solve well
 conditioned.  The defaults of the command line were chosen on polcam's own
-validation set (:mod:`polcam.demosaicing.validation`).
+validation set (:mod:`polcam.bench.demosaic_validation`).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
-import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from polcam.demosaicing._registry import mosaic_stack
+from polcam.demosaicing import mosaic_stack
 from polcam.demosaicing.lmmse import (  # noqa: I001
     BLOCK,
     CANONICAL,
     NBLOCKS,
-    WEIGHTS_FILE,
+    block_features,
     lattice_of_taps,
     tap_offsets,
-    block_features,
     to_blocks,
     weight_key,
 )
-from polcam.demosaicing.photos import TRAINING_PHOTOS, photo_stack
 from polcam.io.atomic import atomic_path
 from polcam.mosaic import Layout, parse_layout
 from polcam.synth.patterns import SCENES, make_scene
+from polcam.synth.photos import TRAINING_PHOTOS, photo_stack
 
-__all__ = ["fit_bank", "main", "training_stack"]
+__all__ = ["fit_bank", "noisy_raw", "save_weights", "train", "training_stack"]
 
-#: Defaults of the command line (chosen by :mod:`polcam.demosaicing.validation`;
+#: Defaults of the command line (chosen by :mod:`polcam.bench.demosaic_validation`;
 #: docs/methods/demosaic-lmmse.md).
 DEFAULT_PATTERNS = 50
 DEFAULT_PHOTOS = 80
@@ -201,7 +198,8 @@ def training_stack(rng: np.random.Generator, size: int) -> np.ndarray:
     return np.clip(stack, 0, 1).astype(np.float32)
 
 
-def _noisy(rng: np.random.Generator, raw: np.ndarray) -> np.ndarray:
+def noisy_raw(rng: np.random.Generator, raw: np.ndarray) -> np.ndarray:
+    """A raw mosaic (values in [0, 1]) with random shot and read noise, half the time quantised to 8 bits."""
     a = rng.uniform(0, 2e-4)
     b = rng.uniform(0, 2e-3) ** 2
     out = raw + rng.normal(size=raw.shape).astype(np.float32) * np.sqrt(a * raw + b).astype(np.float32)
@@ -314,7 +312,7 @@ def _sum_scenes(sums: dict[str, list], stacks: Iterator[np.ndarray], rng: np.ran
         for (color, geo), name in CANONICAL.items():
             lay = parse_layout(name)
             truth = stack if color else mono
-            raw = _noisy(rng, mosaic_stack(truth, layout=lay))
+            raw = noisy_raw(rng, mosaic_stack(truth, layout=lay))
             g, x, n = accumulate([(raw, truth)], lay)
             key = weight_key(color, geo)
             if key in sums:
@@ -331,7 +329,7 @@ def gram_sums(*, scenes: int, size: int, seed: int, patterns: int = 0, photos: i
     """Render ``scenes`` scenes of :func:`training_stack` (generator seeded by ``seed``),
     ``patterns`` scenes of :func:`pattern_stack` (their own generator, seeded by ``[seed, 1]``)
     and ``photos`` crops of the training photographs with simulated polarization
-    (:func:`polcam.demosaicing.photos.photo_stack` on :data:`~polcam.demosaicing.photos.TRAINING_PHOTOS`,
+    (:func:`polcam.synth.photos.photo_stack` on :data:`~polcam.synth.photos.TRAINING_PHOTOS`,
     generator ``[seed, 2]``), and sum the normal equations of the four banks of
     :data:`CANONICAL`: ``{weight_key: [gram, cross, count]}`` (see :func:`accumulate`).  The sums
     of the three kinds add: ``gram_sums(scenes=a, patterns=b)`` is ``gram_sums(scenes=a)`` plus
@@ -364,41 +362,8 @@ def train(*, scenes: int, size: int, seed: int, ridge: float, moments: int = 1,
                    ridge=ridge, moments=moments)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command-line entry: train and write the weights atomically."""
-    ap = argparse.ArgumentParser(prog="python -m polcam.demosaicing.training",
-                                 description="Train the lmmse demosaicing filter bank on rendered scenes.")
-    ap.add_argument("--scenes", type=int, default=150, help="number of rendered scenes (default 150)")
-    ap.add_argument("--size", type=int, default=160, help="scene side in pixels (default 160)")
-    ap.add_argument("--seed", type=int, default=2024, help="random seed (default 2024)")
-    ap.add_argument("--ridge", type=float, default=DEFAULT_RIDGE,
-                    help=f"ridge, relative to the mean Gram diagonal (default {DEFAULT_RIDGE:g})")
-    ap.add_argument("--patterns", type=int, default=DEFAULT_PATTERNS,
-                    help=f"pattern scenes added (default {DEFAULT_PATTERNS})")
-    ap.add_argument("--photos", type=int, default=DEFAULT_PHOTOS,
-                    help=f"crops of the training photographs added (default {DEFAULT_PHOTOS})")
-    ap.add_argument("--moments", type=int, default=DEFAULT_MOMENTS, choices=(0, 1, 2),
-                    help=f"order of the vanishing moments (default {DEFAULT_MOMENTS})")
-    ap.add_argument("--out", type=Path, default=WEIGHTS_FILE, help=f"output .npz (default {WEIGHTS_FILE})")
-    args = ap.parse_args(argv)
-    if args.size % BLOCK or args.size < 4 * BLOCK:
-        ap.error(f"--size {args.size}: expected a multiple of {BLOCK}, at least {4 * BLOCK}")
-    t0 = time.perf_counter()
-    weights = train(scenes=args.scenes, size=args.size, seed=args.seed, ridge=args.ridge, moments=args.moments,
-                    patterns=args.patterns, photos=args.photos)
-    info = {"scenes": args.scenes, "size": args.size, "seed": args.seed, "ridge": args.ridge,
-            "patterns": args.patterns, "photos": args.photos, "moments": args.moments,
-            "command": "python -m polcam.demosaicing.training " + " ".join(argv or sys.argv[1:]),
-            "data": "polcam's own rendered scenes (polcam.demosaicing.training.training_stack)"
-                    + (f" and crops of the public-domain / CC0 photographs {', '.join(TRAINING_PHOTOS)} of "
-                       "scikit-image with simulated polarization (polcam.demosaicing.photos)" if args.photos
-                       else "; no third-party images")}
-    with atomic_path(args.out) as tmp:
+def save_weights(weights: dict[str, np.ndarray], path: Path, *, info: dict) -> None:
+    """Write trained weights and how they were made (``info``, stored as JSON) to an ``.npz``, atomically."""
+    with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, info=np.array(json.dumps(info)), **weights)
-    sys.stderr.write(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s\n")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,7 +1,7 @@
 """Photograph-like training and validation scenes: public-domain / CC0 photographs with
 simulated polarization.
 
-The rendered scenes of :mod:`polcam.demosaicing.training` are shapes with synthetic
+The rendered scenes of :mod:`polcam.bench.lmmse_training` are shapes with synthetic
 textures; real frames have natural textures, colour detail that follows the photograph's
 own structure, and polarization edges that coincide with the intensity's edges.  This
 module takes colour photographs that ship with scikit-image (a pinned dependency: they are
@@ -20,7 +20,7 @@ state per pixel and per colour:
   sky, screens, filters), DoLP 0.3 to 0.7, the same in every colour;
 
 then mild optical blur (sigma up to 1 pixel) and an exposure scale with clipping at 1.
-The raw noise is added by the callers (:func:`polcam.demosaicing.training._noisy`).
+The raw noise is added by the callers (:func:`polcam.bench.lmmse_training.noisy_raw`).
 
 Photographs and licences (from the scikit-image docstrings): training uses
 ``astronaut`` (NASA, public domain), ``rocket`` (SpaceX, released into the public

@@ -6,19 +6,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from polcam.demosaicing import demosaic, mosaic_stack
-from polcam.demosaicing.training import training_stack
-from polcam.demosaicing.validation import (
+from polcam.bench.demosaic_validation import (
     VALIDATION_SEED,
     evaluate,
     format_markdown,
-    main,
     score,
     select,
     select_shared,
     stage_params,
     validation_scenes,
 )
+from polcam.bench.lmmse_training import training_stack
+from polcam.cli import main
+from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import MethodError
 from polcam.mosaic import parse_layout
 
@@ -112,7 +112,7 @@ def test_stage_params_name_the_kernel() -> None:
 def test_photos_group_uses_validation_photographs_only() -> None:
     """The photos group is cut from the validation photographs, never the training ones, and
     the other groups do not depend on it."""
-    from polcam.demosaicing.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS
+    from polcam.synth.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS
 
     val = validation_scenes(color=True, **SMALL)
     names = [n.rsplit("-", 1)[0] for g, n, _, _ in val if g == "photos"]
@@ -125,4 +125,4 @@ def test_photos_group_uses_validation_photographs_only() -> None:
 
 def test_command_line_refuses_the_validation_seed_for_training() -> None:
     with pytest.raises(SystemExit):
-        main(["--seed", str(VALIDATION_SEED)])
+        main(["bench", "demosaic-validation", "--seed", str(VALIDATION_SEED)])

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from polcam.bench.lmmse_training import accumulate, fit_bank, gram_sums, pattern_stack, training_stack
+from polcam.cli import main
 from polcam.demosaicing import mosaic_stack
-from polcam.demosaicing.lmmse import CANONICAL, lattice_of_taps, tap_offsets
-from polcam.demosaicing.lmmse import apply_bank
-from polcam.demosaicing.training import accumulate, fit_bank, gram_sums, main, pattern_stack, training_stack
+from polcam.demosaicing.lmmse import CANONICAL, apply_bank, lattice_of_taps, tap_offsets
 from polcam.mosaic import parse_layout
 from polcam.polarimetry import dolp
 
@@ -112,14 +112,15 @@ def test_pattern_scenes_and_additive_sums() -> None:
 
 def test_command_line_writes_weights(tmp_path: Path) -> None:
     out = tmp_path / "w.npz"
-    assert main(["--scenes", "2", "--size", "32", "--photos", "0", "--out", str(out)]) == 0
+    assert main(["bench", "train-lmmse", "--scenes", "2", "--size", "32", "--photos", "0", "--out", str(out)]) == 0
     with np.load(out) as data:
         assert set(data.files) == {"info", "mono_diag", "mono_beside", "color_diag", "color_beside"}
         assert data["color_diag"].shape == (144, 192) and data["mono_diag"].shape == (144, 64)
         info = json.loads(str(data["info"]))
     assert info["scenes"] == 2 and "no third-party images" in info["data"]
+    assert info["command"].startswith("polcam bench train-lmmse --scenes 2 --size 32 ")
     with pytest.raises(SystemExit):
-        main(["--size", "30", "--out", str(out)])
+        main(["bench", "train-lmmse", "--size", "30", "--out", str(out)])
 
 
 def test_shipped_weights_say_how_they_were_made() -> None:
@@ -127,7 +128,7 @@ def test_shipped_weights_say_how_they_were_made() -> None:
 
     with np.load(WEIGHTS_FILE) as data:
         info = json.loads(str(data["info"]))
-    assert info["scenes"] >= 100 and "polcam.demosaicing.training" in info["command"]
+    assert info["scenes"] >= 100 and "polcam.demosaicing.training" in info["command"]  # the module that made them
     # the settings the validation set chose (docs/methods/demosaic-lmmse.md)
     assert info["moments"] == 2 and info["patterns"] == 50 and info["ridge"] == 0.003 and info["seed"] == 2024
     assert info["photos"] == 80 and "CC0" in info["data"]

@@ -1,8 +1,8 @@
 """Calibration benchmark: recovered maps against planted truth, and Stokes errors before and after.
 
-``python -m polcam.calibration bench [--layouts imx250mzr imx250myr] [--size 128] [--seed 0]``
+``polcam bench calibration [--layouts imx250mzr imx250myr] [--size 128] [--seed 0]``
 
-For each layout, a synthetic sensor (:class:`~polcam.calibration.simulate.ImperfectSensor`)
+For each layout, a synthetic sensor (:class:`~polcam.synth.sensor.ImperfectSensor`)
 gets planted imperfections: gain spread 5 %, extinction ratios uniform in
 [50, 300], orientation offsets of +1.5, -2, +2.5 and -1 degrees for the 0, 45, 90
 and 135-degree pixels plus 1 degree of scatter, dark offsets of 3 counts RMS
@@ -41,25 +41,26 @@ counts, 20000 electrons full well, 4 electrons read noise.  Then:
 
 from __future__ import annotations
 
-import argparse
-import json
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from polcam.calibration.apply import apply_calibration, correct_stack
 from polcam.calibration.estimate import calibrate_dark, calibrate_flat, calibrate_polarizer, class_index
-from polcam.calibration.simulate import ImperfectSensor
 from polcam.calibration.store import Calibration
 from polcam.demosaicing import demosaic
+from polcam.errors import PolcamError
 from polcam.frame import Frame
 from polcam.polarimetry import aolp, dolp, stokes
+from polcam.separation import separate
+from polcam.synth.render import render
+from polcam.synth.scenes import scene
+from polcam.synth.sensor import ImperfectSensor
 
 __all__ = [
-    "VARIANTS", "add_arguments", "format_markdown", "main", "make_calibration", "precision", "run", "run_args",
+    "VARIANTS", "format_markdown", "make_calibration", "precision", "run",
     "separation_rows", "smooth_scene", "stokes_errors",
 ]
 
@@ -251,11 +252,6 @@ def separation_rows(sensor: ImperfectSensor, cal: Calibration, *, methods: Seque
     """
     import dataclasses
 
-    from polcam.errors import PolcamError
-    from polcam.separation import separate
-    from polcam.synth.render import render
-    from polcam.synth.scenes import scene
-
     h, w = sensor.shape
     if h != w:
         raise PolcamError(f"separation benchmark: sensor of {w}x{h}: expected a square sensor")
@@ -395,46 +391,3 @@ def format_markdown(result: dict[str, Any]) -> str:
                      ("uncalibrated", "calibrated", "ideal sensor")]
             lines.append(f"| {lay} | {scene_name} | {method} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Add the options of ``polcam bench calibration`` to a parser."""
-    p.add_argument("--layouts", nargs="+", default=["imx250mzr", "imx250myr"], help="sensor layouts")
-    p.add_argument("--size", type=int, default=128, help="sensor side in pixels (default 128)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--dark-frames", type=int, default=128,
-                   help="dark frames averaged into the dark map (default 128)")
-    p.add_argument("--flat-frames", type=int, default=512,
-                   help="flat-field frames averaged into the gain map (default 512)")
-    p.add_argument("--angles", type=int, default=16, help="polarizer angles (default 16)")
-    p.add_argument("--per-angle", type=int, default=32, help="frames per polarizer angle (default 32)")
-    p.add_argument("--scene-frames", type=int, default=16, help="frames averaged for the scene (default 16)")
-    p.add_argument("--separation", nargs="*", default=["imin", "tensor"], metavar="METHOD",
-                   help="separation methods to score on a rendered scene (default: imin tensor; tensor runs "
-                        "on colour layouts only; give the flag alone to skip)")
-    p.add_argument("--json", type=Path, help="also write the raw figures to this JSON file")
-
-
-def run_args(args: argparse.Namespace) -> int:
-    """Run the calibration benchmark with parsed options; print the tables."""
-    t0 = time.perf_counter()
-    result = run(layouts=args.layouts, size=args.size, seed=args.seed, dark_frames=args.dark_frames,
-                 flat_frames=args.flat_frames, angles=args.angles, per_angle=args.per_angle,
-                 scene_frames=args.scene_frames, separation=args.separation)
-    print(format_markdown(result))
-    print(f"\n({time.perf_counter() - t0:.1f} s)")
-    if args.json:
-        from polcam.io.atomic import atomic_write
-
-        with atomic_write(args.json, "w") as fh:
-            json.dump(result, fh, indent=2)
-    return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m polcam.calibration bench`` (the same as ``polcam bench calibration``)."""
-    p = argparse.ArgumentParser(prog="python -m polcam.calibration bench",
-                                description="Calibration benchmark on a synthetic imperfect sensor "
-                                            "(polcam/calibration/bench.py explains every number).")
-    add_arguments(p)
-    return run_args(p.parse_args(argv))

@@ -1,4 +1,4 @@
-"""Tests of polcam.calibration.simulate: the synthetic imperfect sensor follows its stated model."""
+"""Tests of polcam.synth.sensor: the synthetic imperfect sensor follows its stated model."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from polcam.calibration.model import nominal_orientation
-from polcam.calibration.simulate import ImperfectSensor
 from polcam.errors import PolcamError
+from polcam.synth.sensor import ImperfectSensor
 
 
 def test_random_sensor_has_the_planted_statistics():

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from polcam.demosaicing.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo, photo_stack, polarize
 from polcam.errors import MethodError
 from polcam.polarimetry import aolp, dolp
+from polcam.synth.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo, photo_stack, polarize
 
 
 def test_training_and_validation_photos_are_disjoint() -> None:

@@ -34,9 +34,16 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from polcam._jsonable import jsonable
+from polcam.acquisition.saving import check_writable, write_captured_frame
 from polcam.calibration.store import CalibrationError
 from polcam.camera.base import CameraDisconnectedError, FrameTimeout
+from polcam.camera.replay import as_recorded
+from polcam.errors import FrameReadError, FrameWriteError
 from polcam.frame import Frame
+from polcam.io import RAW_EXTENSIONS, read_frame, read_sidecar
+from polcam.io.atomic import os_reason
+from polcam.io.listing import list_raw_files, raw_files_in
 
 if TYPE_CHECKING:
     from polcam.camera.base import Camera
@@ -84,8 +91,6 @@ def angle_of(path: Path, *, source: str = "auto") -> float:
         No angle found, a sidecar value that is not a finite number, or
         sidecar and name disagreeing.
     """
-    from polcam.io import read_sidecar
-
     side = read_sidecar(path) or {}
     val = side.get(ANGLE_KEY)
     if val is not None and (isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val)):
@@ -125,10 +130,6 @@ def list_frames(paths: Sequence[Path], *, recursive: bool = False) -> list[Path]
     CalibrationError
         A path that does not exist, or no frames at all.
     """
-    from polcam.errors import FrameReadError
-    from polcam.io import RAW_EXTENSIONS
-    from polcam.io.listing import list_raw_files
-
     try:
         out = list_raw_files(paths, recursive=recursive)
     except FrameReadError as exc:
@@ -141,8 +142,6 @@ def list_frames(paths: Sequence[Path], *, recursive: bool = False) -> list[Path]
 
 def read_frames(files: Sequence[Path], layout: str | None) -> Iterator[Frame]:
     """Each file read as a frame (:func:`polcam.io.read_frame`), one at a time."""
-    from polcam.io import read_frame
-
     for f in files:
         yield read_frame(f, layout=layout)
 
@@ -181,8 +180,6 @@ def parse_angles(text: str) -> list[float]:
 
 def plain(obj: Any) -> Any:
     """``obj`` with tuples as lists and non-finite floats as ``None`` (for the file's JSON)."""
-    from polcam._jsonable import jsonable
-
     return jsonable(obj, other="str")
 
 
@@ -282,8 +279,6 @@ class FrameGrabber:
             The camera ends (a replay folder played out) or sends no frame for
             ``idle_timeout`` seconds before ``n`` good frames.
         """
-        from polcam.camera.replay import as_recorded
-
         label = label or f"the {self.stage}"
         cam = self.camera
         if not cam.running:
@@ -313,8 +308,6 @@ class FrameGrabber:
             reads.close()
 
     def _keep(self, frame: Frame, angle: float | None) -> None:
-        from polcam.acquisition.saving import write_captured_frame
-
         seq = self.taken
         if angle is None:
             name = f"{self.stage}_{seq:05d}.raw"
@@ -323,8 +316,6 @@ class FrameGrabber:
             name = f"pol_{seq:05d}_{float(angle) % 180.0:07.3f}deg.raw"
             extra = {ANGLE_KEY: float(angle)}
         assert self.keep is not None
-        from polcam.io.atomic import os_reason
-        from polcam.errors import FrameWriteError
 
         try:
             path = write_captured_frame(self.keep / name, frame, extra=extra)
@@ -378,10 +369,6 @@ def keep_folder(path: Path) -> Path:
         Not a folder, already holding raw frames, or not writable (read-only,
         permissions, a full disk: the message names the folder and the reason).
     """
-    from polcam.acquisition.saving import check_writable
-    from polcam.errors import FrameWriteError
-    from polcam.io.listing import raw_files_in
-
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise CalibrationError("--keep: not a folder", path=path)

@@ -1,4 +1,4 @@
-"""Tests of polcam.calibration.bench (small sizes; the figures in docs come from the full run)."""
+"""Tests of polcam.bench.calibration (small sizes; the figures in docs come from the full run)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
+from polcam.bench.calibration import VARIANTS, format_markdown, run, smooth_scene, stokes_errors
 from polcam.calibration.__main__ import main as module_main
-from polcam.calibration.bench import VARIANTS, format_markdown, run, smooth_scene, stokes_errors
 from polcam.polarimetry import stokes
 
 
