@@ -33,9 +33,13 @@ import cv2
 import numpy as np
 
 from polcam import polarimetry as st
+from polcam.calibration import apply_calibration
+from polcam.demosaicing import default_method
+from polcam.demosaicing import demosaic as _demosaic  # the one demosaic import of the pipeline
 from polcam.errors import LayoutError
 from polcam.frame import Frame
 from polcam.mosaic import Layout
+from polcam.separation import ResolvedSeparation, input_form, resolve_separation, separate
 
 if TYPE_CHECKING:
     from polcam.calibration.store import Calibration
@@ -91,8 +95,6 @@ def calibrate(frame: Frame, calibration: Calibration | None) -> Frame:
     """
     if calibration is None:
         return frame
-    from polcam.calibration import apply_calibration
-
     return apply_calibration(frame, calibration, polarimetric="mosaic")
 
 
@@ -100,8 +102,6 @@ def default_demosaic(layout: str | Layout) -> str:
     """The demosaicing method for ``layout`` where none is named: the demosaicing registry's
     default (:func:`polcam.demosaicing.default_method`), the same for process, stokes, capture
     and the demo."""
-    from polcam.demosaicing import default_method
-
     return default_method(layout)
 
 
@@ -113,8 +113,6 @@ def to_stack(frame: Frame, *, layout: str | Layout | None = None, demosaic: str 
     or ``None`` (:func:`default_demosaic` of the frame's layout).  Linear values on the scale of
     the normalised frame (not clipped).
     """
-    from polcam.demosaicing import demosaic as _demosaic  # the one demosaic import of the pipeline
-
     kwargs: dict[str, Any] = {"resolution": resolution, "method": demosaic}
     if layout is not None:
         kwargs["layout"] = layout
@@ -139,8 +137,6 @@ def separate_layers(stack: np.ndarray, *, method: str | ResolvedSeparation | Non
 
     :func:`polcam.separate` clips the stack to [0, 1] (recorded in ``info``).
     """
-    from polcam.separation import separate
-
     return separate(stack, method=method, **dict(options or {}))
 
 
@@ -239,8 +235,6 @@ def _resolved(shape: tuple[int, ...], method: str | ResolvedSeparation | None,
               options: Mapping[str, Any] | None) -> ResolvedSeparation:
     """The separation of a stack of ``shape``: ``method`` as resolved (``options`` added), or resolved
     here for the stack's form."""
-    from polcam.separation import ResolvedSeparation, input_form, resolve_separation
-
     form = input_form(shape)
     if isinstance(method, ResolvedSeparation):
         sep = method if method.form == form else method.for_form(form)

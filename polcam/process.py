@@ -53,13 +53,25 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from polcam._version import __version__
 from polcam._hashing import sha256_file
-from polcam.errors import PolcamError
-from polcam.sinks.base import FanOut, Record, Sink
-from polcam.sinks.files import FORMATS
-from polcam.outdir import summarize, write_summary
+from polcam._jsonable import jsonable
+from polcam._memory import peak_rss_mb, reset_peak
+from polcam._version import __version__
+from polcam.calibration import load_calibration
+from polcam.demosaicing import resolve_demosaic
+from polcam.errors import FrameWriteError, PolcamError
+from polcam.footprint import frame_memory
+from polcam.io import read_frame
+from polcam.io.atomic import fsync_dir
+from polcam.io.listing import raw_files_in
+from polcam.io.readers import declared_size
+from polcam.mosaic import parse_layout
+from polcam.pipeline import require_layout, run_frame
 from polcam.process_checks import check_run, layout_hint, separation_for
+from polcam.separation import layout_form
+from polcam.sinks.base import FanOut, Record, Sink
+from polcam.sinks.files import FORMATS, ProductFiles
+from polcam.workpool import orphaned, run_jobs
 
 if TYPE_CHECKING:
     from polcam.demosaicing import ResolvedDemosaic
@@ -103,8 +115,6 @@ def _canonical(obj: Any) -> str:
 
 
 def _jsonable(obj: Any) -> Any:
-    from polcam._jsonable import jsonable
-
     return jsonable(obj)
 
 
@@ -123,8 +133,6 @@ def plan(inputs: Sequence[Path], out_dir: Path, *, recursive: bool = False,
         Inputs that are neither a readable file nor a folder, and name
         collisions (``input``, ``error``).
     """
-    from polcam.io.listing import raw_files_in
-
     jobs: dict[str, FrameJob] = {}
     problems: list[dict[str, str]] = []
     for root in inputs:
@@ -186,11 +194,6 @@ def _prepare(job: FrameJob, opts: ProcessOptions, separations: Mapping[str, Reso
     it lacks is resolved here.  Returns (frame, separation, demosaicing, fingerprint parts,
     fingerprint).
     """
-    from polcam.demosaicing import resolve_demosaic
-    from polcam.io import read_frame
-    from polcam.pipeline import require_layout
-    from polcam.separation import layout_form
-
     input_hash = sha256_file(job.input)
     if opts.max_memory:
         _check_memory(job, opts, separations)
@@ -217,11 +220,6 @@ def _prepare(job: FrameJob, opts: ProcessOptions, separations: Mapping[str, Reso
 
 def _check_memory(job: FrameJob, opts: ProcessOptions, separations: Mapping[str, ResolvedSeparation]) -> None:
     """Refuse a frame whose declared size needs more memory than ``opts.max_memory`` (before reading it)."""
-    from polcam.footprint import frame_memory
-    from polcam.io.readers import declared_size
-    from polcam.mosaic import parse_layout
-    from polcam.separation import layout_form
-
     size = declared_size(job.input)
     if size is None or opts.max_memory is None:
         return
@@ -280,8 +278,6 @@ def _process_frame(job: FrameJob, opts: ProcessOptions, *, force: bool,
     instead of starting processes of its own (the answer does not change)."""
     from threadpoolctl import threadpool_limits
 
-    from polcam._memory import peak_rss_mb, reset_peak
-
     t0 = time.perf_counter()
     base = {"input": job.input, "name": job.name}
     try:
@@ -316,9 +312,6 @@ def _one_line(exc: BaseException, input_path: str, limit: int = 500) -> str:
 
 def _unmark_finished(target: Path) -> None:
     """Remove ``target/meta.json`` before any product is replaced: a frame cut short has none."""
-    from polcam.errors import FrameWriteError
-    from polcam.io.atomic import fsync_dir
-
     meta = target / "meta.json"
     try:
         meta.unlink()
@@ -331,10 +324,6 @@ def _unmark_finished(target: Path) -> None:
 
 def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, sep: ResolvedSeparation, dem: ResolvedDemosaic,
              parts: dict[str, Any], fingerprint: str, t0: float) -> dict[str, Any]:
-    from polcam.pipeline import run_frame
-    from polcam.sinks.base import Record
-    from polcam.sinks.files import ProductFiles
-
     calibration = _calibration(opts.calibration, parts["calibration_sha256"]) if opts.calibration else None
     read_seconds = time.perf_counter() - t0
     result = run_frame(frame, calibration=calibration, demosaic=dem, resolution=opts.resolution,
@@ -380,8 +369,6 @@ def _compute(job: FrameJob, opts: ProcessOptions, frame: Any, sep: ResolvedSepar
 
 def _exit_if_orphaned() -> None:
     """In a worker whose run is gone (a rerun may own the folder now): end before writing anything."""
-    from polcam.workpool import orphaned
-
     if orphaned():
         os._exit(1)
 
@@ -391,8 +378,6 @@ _CALIBRATIONS: dict[tuple[str, str], Any] = {}
 
 def _calibration(path: str, digest: str) -> Any:
     """The calibration in ``path``, loaded once per process (its per-cell matrices are cached on it)."""
-    from polcam.calibration import load_calibration
-
     key = (str(Path(path).resolve()), digest)
     if key not in _CALIBRATIONS:
         _CALIBRATIONS.clear()
@@ -497,8 +482,6 @@ def _run(jobs: Sequence[FrameJob], opts: ProcessOptions, workers: int, scheduler
                 raise
             done(r)
     else:
-        from polcam.workpool import run_jobs
-
         def lost(job: FrameJob, why: Any) -> None:
             if abort():
                 done(_cancelled(job, _stopped(abort)))

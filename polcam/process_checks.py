@@ -11,7 +11,10 @@ import os
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from polcam.errors import PolcamError
+from polcam.errors import MethodError, PolcamError
+from polcam.io import read_sidecar
+from polcam.mosaic import layout_for_format, parse_layout, pixel_format
+from polcam.separation import check_options, layout_form, resolve_separation
 
 if TYPE_CHECKING:
     from polcam.process import FrameJob, ProcessOptions
@@ -26,9 +29,6 @@ def layout_hint(path: str | os.PathLike[str]) -> Any:
     Reads the sidecar only, not the pixels; a sidecar that cannot be read gives ``None`` (the
     frame's own read reports it).
     """
-    from polcam.io import read_sidecar
-    from polcam.mosaic import layout_for_format, parse_layout, pixel_format
-
     try:
         side = read_sidecar(path) or {}
         if side.get("layout"):
@@ -53,8 +53,6 @@ def separation_for(opts: ProcessOptions, form: str, *, got: str | None = None) -
         An unknown method; an option it does not take or a value not of the option's type; a
         colour-only method for mono frames (``got`` describes them in the message).
     """
-    from polcam.separation import resolve_separation
-
     return resolve_separation(opts.method, form, opts.method_options, only_taken=opts.method is None, got=got)
 
 
@@ -82,9 +80,6 @@ def check_run(opts: ProcessOptions, jobs: Sequence[FrameJob]) -> dict[str, Resol
     LayoutError
         An unknown ``opts.layout``.
     """
-    from polcam.errors import MethodError
-    from polcam.separation import check_options, layout_form
-
     if opts.layout is not None:
         forms = {layout_form(opts.layout)}
     else:

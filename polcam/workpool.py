@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import wait as wait_ready
 from typing import Any
 
-from polcam.parallel import limit_blas, context
+from polcam.parallel import context, limit_blas
 
 __all__ = ["Lost", "orphaned", "run_jobs"]
 

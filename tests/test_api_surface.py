@@ -14,7 +14,7 @@ import pytest
 SURFACE: dict[str, set[str]] = {
     "polcam": {"DEMOSAIC_METHODS", "Frame", "Layout", "METHODS", "PolcamError", "Separation", "Stokes", "__version__", "aolp",
                "demosaic", "dolp", "imax", "imin", "parse_layout", "read_frame", "read_image", "separate", "stokes", "write_image"},
-    "polcam.separation": {"METHODS", "MethodSpec", "ResolvedSeparation", "Separation", "check_options",
+    "polcam.separation": {"METHODS", "SATURATED", "MethodSpec", "ResolvedSeparation", "Separation", "check_options",
                           "default_method", "estimated_illuminant", "input_form", "layout_form", "method_spec",
                           "methods", "register", "resolve_separation", "separate", "takes_illuminant",
                           "unregister"},

@@ -19,16 +19,16 @@ import numpy as np
 import pytest
 
 from polcam import polarimetry as st
+from polcam.acquisition import FrameSaver, StopRequest, run_capture
 from polcam.camera import AravisCamera, ReplayCamera, aravis_available
 from polcam.camera.emulator import emulator_available, gige_emulator
-from polcam.acquisition import FrameSaver, StopRequest, run_capture
 from polcam.commands.capture import add_capture_parser, main
-from polcam.pipeline import live_maps
 from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import FrameWriteError, LayoutError, MethodError
 from polcam.frame import Frame
 from polcam.io import read_frame, read_sidecar, write_frame
 from polcam.mosaic import parse_layout
+from polcam.pipeline import live_maps
 
 REPO = Path(__file__).resolve().parents[1]
 FIXTURES = REPO / "fixtures" / "raw"
@@ -706,9 +706,9 @@ def test_calibrated_colour_capture_separates_the_corrected_stack(tmp_path):
     # colour sensor, a separation method on its own thread: the layers it logs are those of the
     # corrected mosaic (apply_calibration, then the bilinear cell stack), not of the raw one
     from polcam.calibration import apply_calibration, calibrate_dark, calibrate_polarizer, save_calibration
-    from polcam.synth.sensor import ImperfectSensor
     from polcam.separation import separate
     from polcam.sinks.rerun import unit_u8
+    from polcam.synth.sensor import ImperfectSensor
 
     sensor = ImperfectSensor.random("imx250myr", 16, 16, seed=5, hot_fraction=0.0)
     dark = calibrate_dark(sensor.frames((0, 0, 0), n=4, rng=1))
@@ -761,8 +761,8 @@ def test_live_separation_holds_the_first_frames_illuminant(tmp_path):
 
 
 def test_the_held_illuminant_reaches_every_later_separation(tmp_path):
-    from polcam.acquisition.live import LiveProcessor
     from polcam import separation
+    from polcam.acquisition.live import LiveProcessor
 
     calls: list[dict] = []
 

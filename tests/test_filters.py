@@ -8,7 +8,6 @@ where it is installed (skipped otherwise) and on a CUDA GPU where one is present
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from scipy import ndimage

@@ -26,7 +26,7 @@ SHIMS = {"polcam.cli", "polcam.__main__", "polcam.capture", "polcam.calibration.
 #: SAME_LAYER below.  Longest prefix wins (the shims are named whole).
 LAYERS: list[tuple[str, set[str]]] = [
     ("errors", {"polcam.errors"}),
-    ("base", {"polcam._names", "polcam._jsonable", "polcam._hashing", "polcam._version",
+    ("base", {"polcam.registry", "polcam._jsonable", "polcam._hashing", "polcam._version",
               "polcam._xp", "polcam._imageops", "polcam.filters", "polcam.parallel", "polcam.workpool"}),
     ("mosaic", {"polcam.mosaic"}),
     ("frame", {"polcam.frame"}),
@@ -51,7 +51,6 @@ SAME_LAYER: dict[tuple[str, str], str] = {
     ("polcam.separation", "polcam.polarimetry"): "the methods separate with Stokes maps, Imin and Imax",
     ("polcam.calibration", "polcam.demosaicing"): "correct_stack demosaics a calibrated mosaic",
     ("polcam.process", "polcam.process_checks"): "the batch run's checks, one module apart",
-    ("polcam.process", "polcam.outdir"): "the batch run's output folder",
     ("polcam.process", "polcam.footprint"): "the batch run's memory and disk estimates",
     ("polcam.process", "polcam._memory"): "the workers' peak memory",
     ("polcam.viewer", "polcam.process"): "polcam view reads a process folder's layout hint",
@@ -60,20 +59,12 @@ SAME_LAYER: dict[tuple[str, str], str] = {
 #: Private names imported from another module that other tasks' files still hold (the lead
 #: empties this at merge; each is renamed in its owning module).  (importer, module, name).
 KNOWN_PRIVATE: dict[tuple[str, str, str], str] = {
-    ("polcam.process", "polcam.process_checks", "_takes"): "resolve: method resolution once",
     ("polcam.separation.wen21", "polcam.separation._rpca", "_rpca_direction_t"): "speed: wen21 and its helpers",
 }
 
 #: Package-private modules imported from outside their package, still to be made public in the
 #: package that owns them (the lead empties this at merge).  (importer, module).
 KNOWN_PRIVATE_MODULES: dict[tuple[str, str], str] = {
-    ("polcam.pipeline", "polcam.separation._registry"): "resolve: check_options, input_form",
-    ("polcam.process_checks", "polcam.separation._registry"): "resolve: check_options",
-    ("polcam.acquisition.run", "polcam.separation._registry"): "resolve: check_options",
-    ("polcam.acquisition.live", "polcam.separation._registry"): "resolve: takes_illuminant, estimated_illuminant",
-    ("polcam.bench.stability", "polcam.separation._registry"): "resolve: takes_illuminant, estimated_illuminant",
-    ("polcam.bench.stability", "polcam.separation._illuminant"): "resolve: SATURATED, to export from "
-                                                                 "polcam.separation with the registry's names",
 }
 
 #: Imports of polcam modules made inside functions, per module.  A module not listed may make none.
@@ -81,12 +72,6 @@ KNOWN_PRIVATE_MODULES: dict[tuple[str, str], str] = {
 #: merge; the lead hoists them then and lowers these.
 LAZY_BUDGET: dict[str, int] = {
     "polcam.sinks": 1,                              # RerunSink on first use (polcam.sinks.__getattr__)
-    "polcam.commands._args": 1,                     # resolve task
-    "polcam.commands.process": 12,                  # resolve task
-    "polcam.pipeline": 8,                           # resolve task
-    "polcam.process": 20,                           # resolve task
-    "polcam.process_checks": 12,                    # resolve task
-    "polcam.bench.speed": 16,                       # speed task
 }
 
 #: Libraries loaded on first use only (docs/architecture.md, lazy imports).

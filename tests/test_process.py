@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from polcam.cli import main
-from polcam.separation import default_method
 from polcam.errors import FrameWriteError
 from polcam.io import read_frame, read_image, write_frame
 from polcam.process import OUTPUTS, ProcessOptions, plan, process_frame, run
+from polcam.separation import default_method
 
 MONO = "fruits_crop"
 COLOUR = "synthetic_bunny5"

@@ -421,8 +421,8 @@ def _blueprint_views(path: Path) -> dict[str, str]:
 
 def test_a_batch_shows_no_capture_statistics(processed, tmp_path):
     # `process --rerun` (and `view` of a folder) lay out images only; a capture adds its statistics
-    from polcam.camera.replay import ReplayCamera
     from polcam.acquisition import run_capture
+    from polcam.camera.replay import ReplayCamera
 
     batch = tmp_path / "batch.rrd"
     assert main(["process", str(processed.parent / "raw"), "-o", str(tmp_path / "out"), "--method", "imin",

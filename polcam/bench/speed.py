@@ -54,8 +54,17 @@ from typing import Any
 
 import numpy as np
 
+from polcam.bench import maps, targets
+from polcam.bench.quality import psnr
+from polcam.bench.targets import device_name
+from polcam.demosaicing import demosaic
 from polcam.errors import MethodError
-from polcam.separation.tensor import AUTO_UNTILED_PIXELS
+from polcam.io.atomic import atomic_write
+from polcam.parallel import start_workers
+from polcam.separation import method_spec, separate
+from polcam.separation.tensor import AUTO_UNTILED_PIXELS, warm_up
+from polcam.synth.render import mosaic, render
+from polcam.synth.scenes import scene
 
 __all__ = ["SpeedRow", "add_arguments", "format_markdown", "measure", "run", "run_args"]
 
@@ -86,8 +95,6 @@ class SpeedRow:
 
 
 def _full_frame_raw(scene_name: str, seed: int) -> np.ndarray:
-    from polcam.synth.render import mosaic, render
-    from polcam.synth.scenes import scene
 
     r = render(scene(scene_name), size=1224, seed=seed)
     st = np.tile(r.stack, (1, 2, 2, 1))[:, :2048, :2448]
@@ -154,9 +161,6 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
     import resource
     import time
 
-    from polcam.bench.quality import psnr
-    from polcam.separation import separate
-    from polcam.parallel import start_workers
 
     opts = dict(case.get("options", {}))
     method = case.get("method", "tensor")
@@ -165,8 +169,6 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
         import torch
 
         if method == "tensor":
-            from polcam.separation.tensor import warm_up
-
             warm_up(opts["device"])    # the device's one-off start stays out of the figure
         else:
             rng = np.random.default_rng(0)
@@ -178,8 +180,6 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
             torch.cuda.reset_peak_memory_stats(dev)
     truth = None
     if case["kind"] == "scene":
-        from polcam.synth.render import render
-        from polcam.synth.scenes import scene
 
         r = render(scene(case["scene"]), size=case["size"], seed=case.get("seed", 0))
         stack, truth = r.stack, r.diffuse
@@ -190,8 +190,6 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
             res = separate(stack, method=method, **opts)
             seconds = time.perf_counter() - t0
     else:
-        from polcam.demosaicing import demosaic
-
         raw = _full_frame_raw(case["scene"], case.get("seed", 0))
         with _PeakMemory() as mem:
             start_workers()
@@ -275,8 +273,6 @@ def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bun
     -------
     list of SpeedRow
     """
-    from polcam.separation import method_spec
-
     method_spec(method)                              # unknown names refused before any work
     fast_opts = {"solver": "fast", **(options or {})} if method == "tensor" else dict(options or {})
     rows: list[SpeedRow] = []
@@ -326,8 +322,6 @@ def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bun
                 exact_rows[label] = (row, path)
             elif label in exact_rows and not math.isnan(exact_rows[label][0].seconds):
                 ref, ref_path = exact_rows[label]
-                from polcam.bench.quality import psnr
-
                 row.psnr_delta = row.psnr - ref.psnr
                 row.psnr_vs_exact = psnr(np.load(path), np.load(ref_path))
                 row.speedup = ref.seconds / row.seconds
@@ -427,8 +421,6 @@ def run_args(a: argparse.Namespace) -> int:
         raise MethodError(f"bench speed: --tol and --workers are the tensor method's options, "
                           f"not {a.method!r}'s")
     if a.device and a.method != "tensor":
-        from polcam.separation import method_spec
-
         if "device" not in (method_spec(a.method).options or ()):
             raise MethodError(f"bench speed: --device: method {a.method!r} has no PyTorch backend "
                               "(tensor and polarized-residual have)")
@@ -448,8 +440,6 @@ def run_args(a: argparse.Namespace) -> int:
         print(f"device: {', '.join(names)}")
     print(format_markdown(rows))
     if a.json:
-        from polcam.io.atomic import atomic_write
-
         with atomic_write(a.json, "w") as fh:
             json.dump([asdict(r) for r in rows], fh, indent=1)
         print(f"wrote {a.json}")
@@ -458,14 +448,10 @@ def run_args(a: argparse.Namespace) -> int:
 
 def _print_device(device: str) -> None:
     """Print the device's name (a GPU's model); MethodError when it is not available."""
-    from polcam.bench.targets import device_name
-
     print(f"device {device}: {device_name(device)}", flush=True)
 
 
 def _run_targets(a: argparse.Namespace) -> int:
-    from polcam.bench import targets
-
     if a.device:
         print("the figures below run on the CPU: the maps and wen21 have no PyTorch backend")
     print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
@@ -473,8 +459,6 @@ def _run_targets(a: argparse.Namespace) -> int:
     print(f"load average {_load():.2f}")
     print(targets.format_markdown(rows))
     if a.json:
-        from polcam.io.atomic import atomic_write
-
         with atomic_write(a.json, "w") as fh:
             json.dump([dict(asdict(r), met=r.met) for r in rows], fh, indent=1)
         print(f"wrote {a.json}")
@@ -482,15 +466,11 @@ def _run_targets(a: argparse.Namespace) -> int:
 
 
 def _run_maps(a: argparse.Namespace) -> int:
-    from polcam.bench import maps
-
     print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
     rows = maps.run(repeat=a.repeat, scene=a.frame_scene)
     print(f"load average {_load():.2f}")
     print(maps.format_markdown(rows))
     if a.json:
-        from polcam.io.atomic import atomic_write
-
         with atomic_write(a.json, "w") as fh:
             json.dump([asdict(r) for r in rows], fh, indent=1)
         print(f"wrote {a.json}")

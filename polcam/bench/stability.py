@@ -32,8 +32,7 @@ import numpy as np
 from polcam.bench.quality import score
 from polcam.errors import MethodError
 from polcam.io.atomic import atomic_write
-from polcam.separation import estimated_illuminant, separate, takes_illuminant
-from polcam.separation._illuminant import SATURATED
+from polcam.separation import SATURATED, estimated_illuminant, separate, takes_illuminant
 from polcam.synth.render import render
 from polcam.synth.scenes import scene
 
@@ -71,7 +70,7 @@ class StabilityRow:
 def perturbed(stack: np.ndarray, rel: float, seed: int) -> np.ndarray:
     """``stack`` with every sample below the white level multiplied by ``1 + N(0, rel)`` (float32, same shape).
 
-    The white level is the one the separation methods treat as clipped (``_illuminant.SATURATED``):
+    The white level is the one the separation methods treat as clipped (:data:`polcam.separation.SATURATED`):
     a clipped sample stays as it is, as a real one does.
     """
     s = np.asarray(stack, dtype=np.float32)

@@ -31,7 +31,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import polcam
+from polcam import pipeline
+from polcam.bench import maps
+from polcam.demosaicing import default_method as default_demosaic
 from polcam.errors import MethodError
+from polcam.frame import Frame
+from polcam.mosaic import parse_layout
+from polcam.separation import default_method
 
 __all__ = ["TargetRow", "device_name", "format_markdown", "run"]
 
@@ -102,13 +109,6 @@ def run(*, repeat: int = 5, sep_repeat: int = 3, scene: str = "Bunny5", progress
     MethodError
         polanalyser is not installed (the maps' reference route).
     """
-    import polcam
-    from polcam import pipeline
-    from polcam.bench import maps
-    from polcam.demosaicing import default_method as default_demosaic
-    from polcam.frame import Frame
-    from polcam.mosaic import parse_layout
-    from polcam.separation import default_method
 
     rows: list[TargetRow] = []
     for r in maps.run(repeat=repeat, scene=scene, progress=progress):

@@ -13,23 +13,23 @@ from typing import Any
 
 import numpy as np
 
-from polcam.camera.base import (
-    Camera,
-    CameraSettings,
-    CameraBusyError,
-    CameraNotFoundError,
-    CameraSettingError,
-    CapturedFrame,
-    FrameIdTracker,
-)
 from polcam.camera.aravis_lib import (
     INSTALL_HINT,
     DeviceInfo,
+    aravis_available,
     gerror_message,
     is_busy,
-    aravis_available,
     list_devices,
     load_aravis,
+)
+from polcam.camera.base import (
+    Camera,
+    CameraBusyError,
+    CameraNotFoundError,
+    CameraSettingError,
+    CameraSettings,
+    CapturedFrame,
+    FrameIdTracker,
 )
 from polcam.camera.registry import CameraFlag, register_backend
 from polcam.errors import CameraUnavailableError, LayoutError, PixelFormatError

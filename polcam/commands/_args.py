@@ -18,6 +18,7 @@ from typing import Any, NoReturn
 from polcam.camera.base import TRIGGER_MODES, Camera
 from polcam.camera.registry import backend_for, camera_flags
 from polcam.errors import CameraUnavailableError, PolcamError
+from polcam.separation import default_method
 
 __all__ = [
     "CAMERA_SETTINGS",
@@ -107,8 +108,6 @@ def add_max_pixels_argument(parser: Any) -> None:
 
 def default_methods_text() -> str:
     """``"tensor for colour, imin for mono"``: the registry's default separation per frame kind."""
-    from polcam.separation import default_method
-
     return f"{default_method('stack')} for colour, {default_method('mono-stack')} for mono"
 
 

@@ -10,20 +10,25 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from polcam import process as proc
+from polcam._memory import auto_workers
+from polcam.calibration import load_calibration
 from polcam.commands._args import add_max_pixels_argument, default_methods_text, parse_options, positive_int
 from polcam.commands._checks import check_run_options
 from polcam.errors import PolcamError
+from polcam.footprint import default_max_memory, output_bytes, parse_size
+from polcam.io.readers import declared_size
+from polcam.mosaic import parse_layout
 from polcam.outdir import OutputLock, SummaryReserve, check_output
+from polcam.parallel import default_workers
+from polcam.process import layout_hint
 from polcam.sinks.files import FORMATS
+from polcam.sinks.recording import RecordingSink
 
 __all__ = ["add_parser", "cmd_process"]
 
 
 def cmd_process(args: argparse.Namespace) -> int:
-    from polcam import process as proc
-    from polcam.footprint import default_max_memory, parse_size
-    from polcam.parallel import default_workers
-
     try:
         max_memory = default_max_memory() if args.max_memory is None else parse_size(args.max_memory)
     except ValueError as exc:
@@ -82,8 +87,6 @@ def _locked(args: argparse.Namespace, opts: Any, separations: dict[str, Any], jo
 
 def _declared_sizes(jobs: Sequence[Any], limit: int = 64) -> dict[str, tuple[int, int]]:
     """Sizes the first ``limit`` frames declare (headers and sidecars only), by input path."""
-    from polcam.io.readers import declared_size
-
     out = {}
     for job in jobs[:limit]:
         size = declared_size(job.input)
@@ -94,8 +97,6 @@ def _declared_sizes(jobs: Sequence[Any], limit: int = 64) -> dict[str, tuple[int
 
 def _check_calibration(path: Path, sizes: dict[str, tuple[int, int]]) -> None:
     """Load the calibration once; refuse it (exit 2) when it is corrupt or fits none of the frames."""
-    from polcam.calibration import load_calibration
-
     cal = load_calibration(path)          # CalibrationError (a PolcamError): exit 2, before any work
     if sizes and all((h, w) != tuple(cal.shape) for w, h in sizes.values()):
         seen = sorted({f"{w}x{h}" for w, h in sizes.values()})
@@ -104,10 +105,6 @@ def _check_calibration(path: Path, sizes: dict[str, tuple[int, int]]) -> None:
 
 
 def _output_bytes(opts: Any, jobs: Sequence[Any], sizes: dict[str, tuple[int, int]]) -> int:
-    from polcam.footprint import output_bytes
-    from polcam.mosaic import parse_layout
-    from polcam.process import layout_hint
-
     for job in jobs:
         if job.input in sizes:
             lay = parse_layout(opts.layout) if opts.layout else layout_hint(job.input)
@@ -118,10 +115,6 @@ def _output_bytes(opts: Any, jobs: Sequence[Any], sizes: dict[str, tuple[int, in
 def _run(args: argparse.Namespace, opts: Any, separations: dict[str, Any], jobs: list[Any],
          problems: list[dict[str, str]], reserve: SummaryReserve, client: Any, default_workers: Any) -> int:
     import signal
-
-    from polcam import process as proc
-
-    from polcam._memory import auto_workers
 
     workers = max(1, min(args.workers or auto_workers(opts.method, opts.resolution, default_workers()), len(jobs)))
     in_process = workers == 1 and args.scheduler is None
@@ -148,8 +141,14 @@ def _run(args: argparse.Namespace, opts: Any, separations: dict[str, Any], jobs:
     try:
         if not (args.quiet or args.json):
             from rich.console import Console
-            from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
-                                       TimeElapsedColumn, TimeRemainingColumn)
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                Progress,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
 
             progress = Progress(TextColumn("[bold]process"), BarColumn(), MofNCompleteColumn(),
                                 TextColumn("{task.fields[rate]}"), TimeElapsedColumn(),
@@ -176,8 +175,6 @@ def _run(args: argparse.Namespace, opts: Any, separations: dict[str, Any], jobs:
             state["computing"] = in_process and not state["stop"]
 
         if args.rerun is not None:
-            from polcam.sinks.recording import RecordingSink
-
             sinks.append(RecordingSink(args.rerun))
         state["computing"] = in_process
         try:  # run() closes the sinks

@@ -16,11 +16,11 @@ import numpy as np
 from polcam._version import __version__
 from polcam.commands._args import add_max_pixels_argument
 from polcam.commands._checks import check_run_options
+from polcam.demosaicing import resolve_demosaic
 from polcam.errors import PolcamError
 from polcam.io import read_frame
 from polcam.io.atomic import atomic_write
 from polcam.io.listing import list_raw_files
-from polcam.demosaicing import resolve_demosaic
 from polcam.pipeline import PRODUCTS, require_layout, run_frame
 from polcam.sinks.files import FORMATS, write_meta, write_products
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
+from polcam.separation._illuminant import SATURATED
 from polcam.separation._registry import (
     MethodSpec,
     ResolvedSeparation,
@@ -44,6 +45,6 @@ def __getattr__(name: str) -> tuple[str, ...]:
         return methods()
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-__all__ = ["METHODS", "MethodSpec", "ResolvedSeparation", "Separation", "check_options", "default_method",
+__all__ = ["METHODS", "SATURATED", "MethodSpec", "ResolvedSeparation", "Separation", "check_options", "default_method",
            "estimated_illuminant", "input_form", "layout_form", "method_spec", "methods", "register",
            "resolve_separation", "separate", "takes_illuminant", "unregister"]

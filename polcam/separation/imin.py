@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from polcam.separation._registry import register
 from polcam.polarimetry import imin as _imin
+from polcam.separation._registry import register
 
 REFERENCE = "L. B. Wolff and T. E. Boult, Constraining object features using a polarization reflectance model, IEEE TPAMI 13(7), 1991"
 

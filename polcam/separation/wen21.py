@@ -44,9 +44,9 @@ import numpy as np
 
 from polcam.errors import MethodError
 from polcam.parallel import default_workers
+from polcam.polarimetry import Sinusoid, fit_sinusoid
 from polcam.separation._registry import register
 from polcam.separation._rpca import RPCAResult, _rpca_direction_t, rpca_ialm
-from polcam.polarimetry import Sinusoid, fit_sinusoid
 
 __all__ = [
     "REFERENCE",

@@ -138,7 +138,6 @@ def _most_similar(
     ys, xs = np.nonzero(wrong)
     out = np.empty(ys.size, dtype=np.int64)
     tile = max(8, 2 * r)
-    n_near = 16
     tile_id = (ys // tile) * (-(-w // tile)) + (xs // tile)
     order = np.argsort(tile_id, kind="stable")
     bounds = np.flatnonzero(np.diff(tile_id[order])) + 1

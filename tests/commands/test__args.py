@@ -40,10 +40,9 @@ def test_default_methods_come_from_the_registry():
 
 def test_output_into_a_closed_pipe_ends_quietly():
     # `polcam formats | head -1`: the reader goes away; no traceback, the shell's SIGPIPE status
+    import fcntl
     import subprocess
     import sys
-
-    import fcntl
 
     proc = subprocess.Popen([sys.executable, "-m", "polcam", "formats"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)

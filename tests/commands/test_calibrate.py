@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 
 from polcam.acquisition.calibration_frames import angle_from_name, angle_of
-from polcam.commands.calibrate import add_calibrate_parser, main
-from polcam.synth.sensor import ImperfectSensor
 from polcam.calibration.store import CalibrationError, load_calibration
 from polcam.camera import aravis_available
+from polcam.commands.calibrate import add_calibrate_parser, main
 from polcam.io import read_frame, write_frame
 from polcam.io.sidecar import read_sidecar, sidecar_path, write_sidecar
+from polcam.synth.sensor import ImperfectSensor
 
 SIZE = 16
 
@@ -342,8 +342,8 @@ def test_live_polarizer_needs_good_angles(folders, tmp_path):
 def test_grabber_takes_no_frame_exposed_before_enter(folders, tmp_path, monkeypatch):
     # a free-running camera (replay at a frame rate) keeps exposing while the polarizer turns: the grabber
     # stops it at every prompt, so every frame of an angle was taken after that angle's Enter
-    from polcam.camera import ReplayCamera
     from polcam.acquisition.calibration_frames import FrameGrabber
+    from polcam.camera import ReplayCamera
 
     root, _ = folders
     enter_ns: list[int] = []

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import polcam.demosaicing.lmmse as lm
-from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.bench.lmmse_training import training_stack
+from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import MethodError
 from polcam.mosaic import Layout, parse_layout
 from polcam.polarimetry import aolp, dolp

@@ -10,8 +10,20 @@ import time
 
 import pytest
 
-from tests.faults._process_helpers import (SLOW, check_accounted, check_consistent, enospc_site, finish,
-                                           kill_group, make_frames, reap_group, run, small_disk, start, wait_for)
+from tests.faults._process_helpers import (
+    SLOW,
+    check_accounted,
+    check_consistent,
+    enospc_site,
+    finish,
+    kill_group,
+    make_frames,
+    reap_group,
+    run,
+    small_disk,
+    start,
+    wait_for,
+)
 
 
 def test_second_run_on_the_same_folder_is_refused_and_a_dead_runs_lock_taken_over(tmp_path):

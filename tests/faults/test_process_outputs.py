@@ -11,9 +11,21 @@ from pathlib import Path
 
 import pytest
 
-from tests.faults._process_helpers import (SLOW, check_accounted, check_consistent, finish, kill_group, make_frames,
-                                           reap_group, run, slow_writes_site, small_disk, start, summary,
-                                           wait_for)
+from tests.faults._process_helpers import (
+    SLOW,
+    check_accounted,
+    check_consistent,
+    finish,
+    kill_group,
+    make_frames,
+    reap_group,
+    run,
+    slow_writes_site,
+    small_disk,
+    start,
+    summary,
+    wait_for,
+)
 
 
 def test_full_disk_mid_frame_then_rerun(tmp_path):

@@ -7,9 +7,22 @@ import os
 import signal
 import time
 
-from tests.faults._process_helpers import (SLOW, alive, busy_worker, check_accounted, check_consistent,
-                                           descendants, finish, frame_mtimes, kill_group, make_frames,
-                                           reap_group, start, summary, wait_for)
+from tests.faults._process_helpers import (
+    SLOW,
+    alive,
+    busy_worker,
+    check_accounted,
+    check_consistent,
+    descendants,
+    finish,
+    frame_mtimes,
+    kill_group,
+    make_frames,
+    reap_group,
+    start,
+    summary,
+    wait_for,
+)
 
 
 def test_dead_worker_costs_its_frame_then_ctrl_c_stops_after_the_frames_in_progress(tmp_path):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from polcam.errors import MethodError
-from polcam.separation._illuminant import estimate_illuminant, highlight_colour, polarized_colour
 from polcam.polarimetry import synthesize
+from polcam.separation._illuminant import estimate_illuminant, highlight_colour, polarized_colour
 
 
 def _stack(gamma, *, diffuse=(0.3, 0.3, 0.3), rho=0.8, eff=(1.0, 1.0, 1.0)):

@@ -7,8 +7,7 @@ import pytest
 
 import polcam
 from polcam.errors import MethodError
-from polcam.separation import METHODS, method_spec, separate
-from polcam.separation import register, unregister
+from polcam.separation import METHODS, method_spec, register, separate, unregister
 
 
 def test_methods_are_exported():

@@ -14,6 +14,7 @@ from polcam.errors import MethodError
 from polcam.separation.akashi16 import separate_akashi16, sparse_nmf
 from polcam.synth.dichromatic import patch_scene
 
+
 def objective(data, weights, w, h, lam):
     err = data - w @ h
     return 0.5 * float(((err**2).sum(axis=0) * weights).sum()) + lam * float((h.sum(axis=0) * weights).sum())

@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from polcam.bench.quality import psnr
-from polcam.separation import separate
-from polcam.separation import method_spec
+from polcam.separation import method_spec, separate
 from polcam.separation.akashi16 import separate_akashi16
 from polcam.separation.shen08 import separate_shen08
 from polcam.separation.shen09 import separate_shen09

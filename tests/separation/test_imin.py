@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from polcam.separation import separate
 from polcam.polarimetry import synthesize
+from polcam.separation import separate
 
 
 def _scene(rng, shape):

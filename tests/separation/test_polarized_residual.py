@@ -16,7 +16,6 @@ import polcam
 from polcam.errors import MethodError
 from polcam.polarimetry import synthesize
 
-
 #: The optional residual steps, unbounded (module docstring).
 _STEPS = {"unpolarized": "measured", "evidence": False, "edge_polarization": False, "edge_fit": 0}
 

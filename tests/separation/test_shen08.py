@@ -14,6 +14,7 @@ from polcam.errors import MethodError
 from polcam.separation.shen08 import modified_specular_free, separate_shen08
 from polcam.synth.dichromatic import patch_scene
 
+
 def test_modified_specular_free_image():
     image = np.array([[[0.5, 0.2, 0.1], [0.3, 0.3, 0.6]]])
     tau = (0.1 + 0.3) / 2

@@ -14,6 +14,7 @@ from polcam.errors import MethodError
 from polcam.separation.tan05 import separate_tan05, shift_max_chromaticity, specular_free_image
 from polcam.synth.dichromatic import patch_scene
 
+
 def test_shift_to_true_max_chromaticity_gives_the_diffuse_pixel():
     # eq. 11: I = m_d Lambda + m_s / 3; shifting to Lambda_max recovers m_d Lambda exactly.
     rng = np.random.default_rng(0)

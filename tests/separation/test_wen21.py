@@ -16,11 +16,11 @@ Run this file as a script to print the PSNR table of docs/methods/wen21.md:
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
 from polcam.errors import MethodError
+from polcam.polarimetry import fit_sinusoid
 from polcam.separation import method_spec, methods, separate
 from polcam.separation.wen21 import (
     kmeans,
@@ -29,7 +29,6 @@ from polcam.separation.wen21 import (
     rpca_ialm,
     separate_wen21,
 )
-from polcam.polarimetry import fit_sinusoid
 
 ALBEDOS = ((0.8, 0.25, 0.2), (0.2, 0.7, 0.3), (0.25, 0.35, 0.85), (0.75, 0.7, 0.2))
 GREYS = ((0.6, 0.6, 0.6), (0.35, 0.35, 0.35), (0.8, 0.8, 0.8), (0.5, 0.5, 0.5))

@@ -11,8 +11,7 @@ import pytest
 
 from polcam.bench.quality import psnr
 from polcam.errors import MethodError
-from polcam.separation import separate
-from polcam.separation import register, unregister
+from polcam.separation import register, separate, unregister
 from polcam.separation.yamamoto19 import high_emphasis, separate_yamamoto19
 from polcam.separation.yang10 import separate_yang10
 from polcam.synth.dichromatic import banded_scene

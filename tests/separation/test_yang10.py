@@ -9,7 +9,6 @@ the list, e.g. ``cpu,cuda``).
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 

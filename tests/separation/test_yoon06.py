@@ -14,6 +14,7 @@ from polcam.errors import MethodError
 from polcam.separation.yoon06 import separate_yoon06
 from polcam.synth.dichromatic import patch_scene
 
+
 def literal_iteration(image: np.ndarray, chroma_threshold: float, dark_threshold: float) -> np.ndarray:
     """The paper's pair rule applied pixel by pixel, in raster order, until nothing changes.
 

@@ -180,10 +180,10 @@ def test_s0_is_logged_as_s0_on_a_fixed_8_bit_scale():
 
 
 def test_colour_dolp_and_aolp_are_those_of_the_luminance_weighted_stokes_vector():
-    from polcam.sinks.rerun import luminance_orientation
     from polcam.polarimetry import aolp as st_aolp
     from polcam.polarimetry import dolp as st_dolp
     from polcam.polarimetry import stokes
+    from polcam.sinks.rerun import luminance_orientation
     from polcam.synth.patterns import stack_from_stokes
 
     rng = np.random.default_rng(7)
@@ -219,8 +219,8 @@ def test_the_same_frame_through_capture_and_process_logs_the_same_values(tmp_pat
     import shutil
     from pathlib import Path
 
-    from polcam.camera.replay import ReplayCamera
     from polcam.acquisition import run_capture
+    from polcam.camera.replay import ReplayCamera
     from polcam.cli import main
 
     fixtures = Path(__file__).resolve().parents[2] / "fixtures" / "raw"

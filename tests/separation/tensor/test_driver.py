@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
 from polcam.errors import MethodError
+from polcam.polarimetry import synthesize
 from polcam.separation import separate
 from polcam.separation.tensor import FAST_TOL, separate_tensor, tile_windows
 from polcam.separation.tensor.driver import initial_diffuse
-from polcam.polarimetry import synthesize
 
 
 def _scene(n=16):
@@ -198,8 +197,9 @@ def test_no_seams_on_a_real_stack():
 
 
 def _real_crop(whole=False):
-    import cv2
     from pathlib import Path
+
+    import cv2
 
     root = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real-color-stacks" / "jcpd-15"
     if not (root / "0.png").exists():

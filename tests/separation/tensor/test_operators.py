@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
 from polcam.errors import MethodError
+from polcam.polarimetry import fit_sinusoid, synthesize
 from polcam.separation.tensor.operators import (
     estimate_illuminant,
     fold,
@@ -19,7 +19,6 @@ from polcam.separation.tensor.operators import (
     tau_weights,
     unfold,
 )
-from polcam.polarimetry import fit_sinusoid, synthesize
 
 
 def _common_phase_stack(rng, n4=2, h=5, w=6):
