@@ -19,7 +19,7 @@ from polcam.errors import PolcamError
 from polcam.footprint import default_max_memory, output_bytes, parse_size
 from polcam.io.readers import declared_size
 from polcam.mosaic import parse_layout
-from polcam.outdir import OutputLock, SummaryReserve, check_output
+from polcam.outdir import OutputLock, SummaryReserve, check_output, summarize, write_summary
 from polcam.parallel import default_workers
 from polcam.process import layout_hint
 from polcam.sinks.files import FORMATS
@@ -188,11 +188,11 @@ def _run(args: argparse.Namespace, opts: Any, separations: dict[str, Any], jobs:
         if progress is not None:
             progress.stop()
         interrupted = bool(state["signals"])
-        summary = proc.summarize(results, problems, opts=opts, seconds=time.perf_counter() - t0,
+        summary = summarize(results, problems, opts=opts, seconds=time.perf_counter() - t0,
                                  interrupted=interrupted, planned=jobs)
         reserve.release()
         try:
-            path: Path | str = proc.write_summary(args.out, summary)
+            path: Path | str = write_summary(args.out, summary)
         except PolcamError as exc:  # the counts go to stderr instead
             print(f"error: {exc}", file=sys.stderr)
             path = "(summary.json not written: " + json.dumps(
