@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 import subprocess
@@ -125,9 +126,26 @@ def test_fixture_folder_exists():
     assert (Path(__file__).resolve().parents[1] / "fixtures" / "raw" / "fruits_crop.png").is_file()
 
 
-def test_docs_cli_md_is_up_to_date():
-    """docs/reference/cli.md documents every command and flag: it is the parsers' own help."""
+@pytest.mark.parametrize("page", ["cli", "cli-bench"])
+def test_docs_cli_md_is_up_to_date(page):
+    """docs/reference/cli.md and cli-bench.md document every command and flag: the parsers' own help."""
     from polcam.cli import reference_markdown
 
-    doc = Path(__file__).resolve().parents[1] / "docs" / "reference" / "cli.md"
-    assert doc.read_text() == reference_markdown(), "regenerate: python -m polcam.cli --markdown > docs/reference/cli.md"
+    doc = Path(__file__).resolve().parents[1] / "docs" / "reference" / f"{page}.md"
+    assert doc.read_text() == reference_markdown(page), \
+        f"regenerate: python -m polcam.cli --markdown {page} > docs/reference/{page}.md"
+
+
+def test_the_cli_pages_hold_every_command_once():
+    """Every command's and sub-command's help is on exactly one reference page."""
+    from polcam.cli import reference_markdown
+    from polcam.commands import build_parser
+
+    pages = "".join(reference_markdown(p) for p in ("cli", "cli-bench"))
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    for name in sub.choices:
+        assert pages.count(f"\n## polcam {name}\n") == 1, name
+    assert "\n### polcam bench speed\n" in reference_markdown("cli-bench")
+    assert "polcam bench speed" not in reference_markdown("cli").split("cli-bench.md")[1]
+    with pytest.raises(ValueError, match="cli-nothing"):
+        reference_markdown("cli-nothing")

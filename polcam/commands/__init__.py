@@ -45,19 +45,38 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def reference_markdown() -> str:
-    """docs/reference/cli.md: every command's --help, rendered at 100 columns."""
+#: The pages of docs/reference/ the parsers' help is rendered into: page -> the commands it holds
+#: (None: every command not named by another page).
+REFERENCE_PAGES: dict[str, tuple[str, ...] | None] = {"cli": None, "cli-bench": ("bench",)}
+
+
+def reference_markdown(page: str = "cli") -> str:
+    """docs/reference/<page>.md: the --help of the commands on that page, rendered at 100 columns.
+
+    ``"cli"`` holds ``polcam --help`` and every command but the benchmarks; ``"cli-bench"``
+    holds ``polcam bench`` and its sub-commands (one page each keeps them readable).
+    """
     import os
 
+    if page not in REFERENCE_PAGES:
+        raise ValueError(f"reference page {page!r}: expected one of {', '.join(REFERENCE_PAGES)}")
+    elsewhere = {c for p, cs in REFERENCE_PAGES.items() if p != page and cs for c in cs}
     old = os.environ.get("COLUMNS")
     os.environ["COLUMNS"] = "100"
     try:
         parser = build_parser()
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-        parts = ["# polcam command line", "",
-                 "Generated from the parsers (`python -m polcam.cli --markdown > docs/reference/cli.md`); "
-                 "`polcam COMMAND --help` prints the same.", "", "```", parser.format_help().rstrip(), "```"]
+        wanted = REFERENCE_PAGES[page]
+        title = "# polcam command line" if page == "cli" else f"# polcam command line: {' '.join(wanted or ())}"
+        parts = [title, "",
+                 f"Generated from the parsers (`python -m polcam.cli --markdown {page} > "
+                 f"docs/reference/{page}.md`); `polcam COMMAND --help` prints the same."]
+        if page == "cli":
+            parts += ["", "```", parser.format_help().rstrip(), "```"]
+            parts += ["", "The benchmarks' commands are in [cli-bench.md](cli-bench.md)."]
         for name, cmd in sub.choices.items():
+            if (wanted is not None and name not in wanted) or (wanted is None and name in elsewhere):
+                continue
             parts += ["", f"## polcam {name}", "", "```", cmd.format_help().rstrip(), "```"]
             nested = [a for a in cmd._actions if isinstance(a, argparse._SubParsersAction)]
             for sub_name, sub_cmd in (nested[0].choices.items() if nested else ()):
