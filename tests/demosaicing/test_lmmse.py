@@ -249,7 +249,7 @@ def test_bank_guide_is_the_angle_mean_of_the_bank_bit_for_bit() -> None:
         channels = 3 if lay.is_color else 1
         p = lm.plan(lay, *raw.shape)
         img = np.ascontiguousarray(lm._transform(raw, p.transform))
-        full = lm.apply_bank(img, lm._weights()[p.key], p.shift, channels)
-        guide = lm.apply_bank(img, lm._weights()[p.key], p.shift, channels, guide=True)
+        full = lm.apply_bank(img, lm.shipped_weights()[p.key], p.shift, channels)
+        guide = lm.apply_bank(img, lm.shipped_weights()[p.key], p.shift, channels, guide=True)
         assert guide.shape == (1, *full.shape[1:])
         np.testing.assert_array_equal(guide[0], full.sum(axis=0) * np.float32(0.25))
