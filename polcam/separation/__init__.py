@@ -36,9 +36,6 @@ for _mod in pkgutil.iter_modules(__path__):
     if not _mod.name.startswith("_"):
         importlib.import_module(f"{__name__}.{_mod.name}")
 
-#: Registered separation method names.
-
-
 def __getattr__(name: str) -> tuple[str, ...]:
     """``METHODS``: the registered method names now (:func:`methods`), so a later :func:`register` shows."""
     if name == "METHODS":

@@ -49,6 +49,8 @@ TOLERANCE = 0.04
 #: Standard errors from white under which the polarized light's colour is noise: the camera's white
 #: balance is kept (:func:`estimate_illuminant`).
 WHITE_Z = 3.0
+#: Level (on the [0, 1] scale of a polarization image) at and above which the separation methods
+#: treat a pixel as clipped: its measured light is not a measurement of the scene.
 SATURATED = 0.98
 #: Chromaticity distance from the surface's own colour over which polarized light counts in full
 #: as the illuminant's (:func:`projected_chromaticity`'s ``own_colour``).

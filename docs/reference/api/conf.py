@@ -87,5 +87,36 @@ def _write_pages(app) -> None:
             page.write_text(text)
 
 
+def _doc_comment(name: str, obj: object) -> list[str] | None:
+    """The ``#:`` comment above the assignment of a constant that a package re-exports, or None."""
+    import sys
+
+    from sphinx.pycode import ModuleAnalyzer
+
+    short = name.rpartition(".")[2]
+    for modname, mod in sorted(sys.modules.items()):
+        if not modname.startswith("polcam") or getattr(mod, short, None) is not obj:
+            continue
+        try:
+            docs = ModuleAnalyzer.for_module(modname).find_attr_docs()
+        except Exception:  # a module without source (a C extension): look further
+            continue
+        if ("", short) in docs:
+            return [line for line in docs[("", short)] if line is not None]
+    return None
+
+
+def _constant_docs(app, what, name, obj, options, lines) -> None:
+    """A re-exported constant shows its own ``#:`` comment, not its type's docstring (``float``'s)."""
+    if what != "data" or inspect.isclass(obj) or callable(obj):
+        return
+    own = _doc_comment(name, obj)
+    doc = type(obj).__doc__
+    type_doc = doc.strip().splitlines() if isinstance(doc, str) else []
+    if own is not None or (lines and type_doc and lines[0].strip() == type_doc[0].strip()):
+        lines[:] = own if own is not None else []
+
+
 def setup(app):
     app.connect("builder-inited", _write_pages)
+    app.connect("autodoc-process-docstring", _constant_docs)
