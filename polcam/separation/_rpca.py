@@ -11,6 +11,7 @@ from __future__ import annotations
 from concurrent.futures import Executor
 from typing import Any, NamedTuple
 
+import numba
 import numpy as np
 
 from polcam.errors import MethodError
@@ -147,14 +148,13 @@ def rpca_ialm(m: np.ndarray, *, lam: float | None = None,
     y = x / max(norm2, float(np.abs(x).max()) / lam)
     mu = 1.25 / norm2
     mu_max = mu * 1e7
-    if g is not None and flip and n2 <= 4:
+    if g is not None and flip and n2 == 3:
         low, s, it, converged = _ialm_direction(x, y, g, s_lo, s_hi, p, lam=float(lam), beta=beta,
                                                 mu=mu, mu_max=mu_max, rho=float(rho), tol=float(tol),
                                                 max_iter=int(max_iter), norm_f=norm_f)
         return RPCAResult(low.T * peak, s.T * peak, it, converged)
     s = np.zeros_like(x)
-    converged = False
-    it = 0
+    converged, it = False, 0
     for it in range(1, max_iter + 1):
         inv = 1.0 / mu
         yi = inv * y
@@ -194,7 +194,7 @@ def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, 
                      pool: Executor | None = None, parts: int = 1) -> tuple[np.ndarray, int, bool]:
     """``rpca_ialm(mt.T, lam=lam, lower=lower_t.T, upper=mt.T, direction=g, prior=prior_t.T,
     beta=beta, ...)``'s sparse part, transposed, for matrices given as C-contiguous (k, n)
-    with n > k: the same arithmetic without transposing copies (wen21's clusters).  ``pool``
+    with n > k = 3: the same arithmetic without transposing copies (wen21's clusters).  ``pool``
     and ``parts``: the iterations' blocks on threads (:func:`_ialm_direction`; same result).
 
     Returns
@@ -229,7 +229,72 @@ def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, 
     return sp, it, converged
 
 
-_IALM_BLOCK = 8192  # pixels per block of the fused iteration: its dozen (n2, block) arrays stay in cache
+_IALM_BLOCK = 8192  # pixels per block: a block's shares of the sums are kept apart (thread-independent)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _ialm_pass(x: np.ndarray, y: np.ndarray, sc: np.ndarray, low: np.ndarray, g: np.ndarray,
+               s_lo: np.ndarray, s_hi: np.ndarray, p: np.ndarray, use_p: bool, proj: np.ndarray,
+               bounds: np.ndarray, coef: np.ndarray, gram_out: np.ndarray,
+               rr_out: np.ndarray) -> None:  # pragma: no cover - compiled
+    """One IALM iteration over the pixel blocks ``bounds[i]:bounds[i + 1]`` of (3, n) matrices.
+
+    Per pixel column j, with ``coef = (1/mu, c1, c2, t, mu, 1/mu_next, sum(g), g.g)``
+    (``c1 = mu/(mu+beta)``, ``c2 = beta/(mu+beta)``, ``t = lam/(mu+beta)``)::
+
+        a    = (x - g sc) + y / mu          L = proj a          d = x - L
+        v    = (d + y / mu) c1 + p c2       sc = clip((g.v - t sum(g)) / g.g, s_lo, s_hi)
+        r    = d - g sc                     y += r mu
+        next = (y / mu_next + x) - g sc     (the next thresholding's argument)
+
+    ``low``, ``sc`` and ``y`` are written in place (``p`` is read only when ``use_p``);
+    block i's Gram matrix of ``next`` and its ``|r|^2``, summed over the columns in order,
+    go to ``gram_out[i]`` and ``rr_out[i]``.
+    """
+    inv, c1, c2, t, mu, inv_next, gsum, gg = (coef[0], coef[1], coef[2], coef[3], coef[4],
+                                              coef[5], coef[6], coef[7])
+    tg = t * gsum
+    g0, g1, g2 = g[0], g[1], g[2]
+    p00, p01, p02 = proj[0, 0], proj[0, 1], proj[0, 2]
+    p10, p11, p12 = proj[1, 0], proj[1, 1], proj[1, 2]
+    p20, p21, p22 = proj[2, 0], proj[2, 1], proj[2, 2]
+    for blk in range(bounds.shape[0] - 1):
+        s00 = s10 = s11 = s20 = s21 = s22 = rs = 0.0
+        for j in range(bounds[blk], bounds[blk + 1]):
+            x0, x1, x2 = x[0, j], x[1, j], x[2, j]
+            s0 = sc[j]
+            yi0, yi1, yi2 = y[0, j] * inv, y[1, j] * inv, y[2, j] * inv
+            a0, a1, a2 = (x0 - g0 * s0) + yi0, (x1 - g1 * s0) + yi1, (x2 - g2 * s0) + yi2
+            l0 = p00 * a0 + p01 * a1 + p02 * a2
+            l1 = p10 * a0 + p11 * a1 + p12 * a2
+            l2 = p20 * a0 + p21 * a1 + p22 * a2
+            low[0, j], low[1, j], low[2, j] = l0, l1, l2
+            d0, d1, d2 = x0 - l0, x1 - l1, x2 - l2
+            v0, v1, v2 = (d0 + yi0) * c1, (d1 + yi1) * c1, (d2 + yi2) * c1
+            if use_p:
+                v0, v1, v2 = v0 + p[0, j] * c2, v1 + p[1, j] * c2, v2 + p[2, j] * c2
+            q = ((g0 * v0 + g1 * v1 + g2 * v2) - tg) / gg
+            q = min(max(q, s_lo[j]), s_hi[j])  # s_lo <= s_hi
+            sc[j] = q
+            r0, r1, r2 = d0 - g0 * q, d1 - g1 * q, d2 - g2 * q
+            y0, y1, y2 = y[0, j] + r0 * mu, y[1, j] + r1 * mu, y[2, j] + r2 * mu
+            y[0, j], y[1, j], y[2, j] = y0, y1, y2
+            n0 = (y0 * inv_next + x0) - g0 * q
+            n1 = (y1 * inv_next + x1) - g1 * q
+            n2 = (y2 * inv_next + x2) - g2 * q
+            s00 += n0 * n0
+            s10 += n1 * n0
+            s11 += n1 * n1
+            s20 += n2 * n0
+            s21 += n2 * n1
+            s22 += n2 * n2
+            rs += r0 * r0 + r1 * r1 + r2 * r2
+        gram = gram_out[blk]
+        gram[0, 0], gram[1, 1], gram[2, 2] = s00, s11, s22
+        gram[1, 0] = gram[0, 1] = s10
+        gram[2, 0] = gram[0, 2] = s20
+        gram[2, 1] = gram[1, 2] = s21
+        rr_out[blk] = rs
 
 
 def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarray, s_hi: np.ndarray,
@@ -237,45 +302,47 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
                     rho: float, tol: float, max_iter: int, norm_f: float,
                     pool: Executor | None = None, parts: int = 1
                     ) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """The iterations of :func:`rpca_ialm` with a direction, for a wide (n2, n) matrix of few rows.
+    """The iterations of :func:`rpca_ialm` with a direction, for a wide (3, n) matrix.
 
-    The same steps as the general loop, element by element, in one pass over
-    the pixels per iteration, block by block: the Gram matrix the next
-    singular value thresholding needs is accumulated in the pass that
-    updates ``S`` and ``Y``, and ``S`` is kept as its row scales ``sc``
-    (``S = g sc``).  ``y`` is updated in place.
+    The same steps as the general loop, element by element, in one compiled pass
+    over the pixels per iteration (:func:`_ialm_pass`): the Gram matrix the next
+    singular value thresholding needs is accumulated in the pass that updates
+    ``S`` and ``Y``, and ``S`` is kept as its row scales ``sc`` (``S = g sc``).
+    ``y`` is updated in place.
 
-    With a ``pool``, each iteration's blocks run as ``parts`` contiguous runs on it; every
-    block's share of the Gram matrix and of the residual is kept and the shares are summed in
-    block order, so the result is the same, bit for bit, for any ``pool`` and ``parts``.
+    The pixels run in blocks of ``_IALM_BLOCK``; with a ``pool``, each iteration's blocks run
+    as ``parts`` contiguous runs on it.  Every block's share of the Gram matrix and of the
+    residual is kept and the shares are summed in block order, so the result is the same,
+    bit for bit, for any ``pool`` and ``parts``.
 
     Returns
     -------
     low, sparse : numpy.ndarray
-        (n2, n) float64.
+        (3, n) float64.
     iterations : int
     converged : bool
     """
     k, n = x.shape
-    gb = g[:, None]
-    gg = float(g @ g)
-    gsum = float(g.sum())
-    sc = np.zeros(n)
-    low = np.empty_like(x)
-    blocks = [(a, min(a + _IALM_BLOCK, n)) for a in range(0, n, _IALM_BLOCK)]
-    parts = max(1, min(parts if pool is not None else 1, len(blocks)))
-    runs = [blocks[len(blocks) * i // parts:len(blocks) * (i + 1) // parts] for i in range(parts)]
-    width = min(_IALM_BLOCK, n)
-    bufs = [tuple(np.empty((k, width)) for _ in range(3)) for _ in runs]
+    if k != 3:
+        raise MethodError(f"_ialm_direction: matrix of shape {x.shape}: expected 3 rows")
+    x, y, g = (np.ascontiguousarray(a, dtype=np.float64) for a in (x, y, g))
+    s_lo, s_hi = (np.ascontiguousarray(a, dtype=np.float64) for a in (s_lo, s_hi))
+    use_p = beta > 0 and p is not None
+    pp = np.ascontiguousarray(p, dtype=np.float64) if use_p else x
+    sc, low = np.zeros(n), np.empty_like(x)
+    edges = np.arange(0, n + _IALM_BLOCK, _IALM_BLOCK, dtype=np.int64)
+    edges[-1] = n
+    nb = len(edges) - 1
+    parts = max(1, min(parts if pool is not None else 1, nb))
+    cuts = [nb * i // parts for i in range(parts + 1)]
+    grams, rrs = np.empty((nb, k, k)), np.empty(nb)
     # the Gram matrix of the first thresholding's argument x - S + Y / mu (S = 0)
-    inv = 1.0 / mu
     gram = np.zeros((k, k))
-    for a, b in blocks:
-        arg = inv * y[:, a:b]
-        arg = np.add(x[:, a:b], arg, out=arg)
+    for a, b in zip(edges[:-1], edges[1:]):
+        arg = y[:, a:b] * (1.0 / mu)
+        arg += x[:, a:b]
         gram += arg @ arg.T
-    converged = False
-    it = 0
+    converged, it = False, 0
     for it in range(1, max_iter + 1):
         inv = 1.0 / mu
         w, v = np.linalg.eigh(gram)
@@ -283,60 +350,27 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
         keep = sv > inv
         f = np.zeros_like(sv)
         f[keep] = (sv[keep] - inv) / sv[keep]
-        proj = (v * f) @ v.T
-        c1 = mu / (mu + beta) if beta > 0 else 1.0
-        c2 = beta / (mu + beta) if beta > 0 else 0.0
-        t = lam / (mu + beta)
+        proj = np.ascontiguousarray((v * f) @ v.T)
         mu_next = min(mu * rho, mu_max)
-        inv_next = 1.0 / mu_next
+        c1, c2 = (mu / (mu + beta), beta / (mu + beta)) if beta > 0 else (1.0, 0.0)
+        coef = np.array([inv, c1, c2, lam / (mu + beta), mu, 1.0 / mu_next, g.sum(), g @ g])
 
-        def run(r: int, inv: float = inv, proj: np.ndarray = proj, c1: float = c1, c2: float = c2,
-                t: float = t, mu: float = mu, inv_next: float = inv_next) -> list[tuple[np.ndarray, float]]:
-            buf_gs, buf_yi, buf_arg = bufs[r]
-            shares = []
-            for a, b in runs[r]:
-                xb, yb = x[:, a:b], y[:, a:b]
-                gs = np.multiply(gb, sc[None, a:b], out=buf_gs[:, :b - a])
-                yi = np.multiply(yb, inv, out=buf_yi[:, :b - a])
-                arg = np.subtract(xb, gs, out=buf_arg[:, :b - a])
-                arg += yi
-                lb = np.matmul(proj, arg, out=low[:, a:b])
-                d = np.subtract(xb, lb, out=arg)
-                vv = np.add(d, yi, out=yi)
-                if beta > 0:
-                    vv *= c1
-                    if p is not None:
-                        vv += np.multiply(p[:, a:b], c2, out=gs)
-                q = g @ vv
-                q -= t * gsum
-                q /= gg
-                np.maximum(q, s_lo[a:b], out=q)  # clip to [s_lo, s_hi] (s_lo <= s_hi)
-                sc[a:b] = np.minimum(q, s_hi[a:b], out=q)
-                gs = np.multiply(gb, sc[None, a:b], out=gs)
-                r_ = d
-                r_ -= gs
-                rr_b = float(np.einsum("ij,ij->", r_, r_))
-                r_ *= mu
-                yb += r_
-                # the next thresholding's argument x - S + Y / mu_next, and its Gram matrix
-                nxt = np.multiply(yb, inv_next, out=vv)
-                nxt += xb
-                nxt -= gs
-                shares.append((nxt @ nxt.T, rr_b))
-            return shares
+        def run(r: int, proj: np.ndarray = proj, coef: np.ndarray = coef) -> None:
+            a, b = cuts[r], cuts[r + 1]
+            _ialm_pass(x, y, sc, low, g, s_lo, s_hi, pp, use_p, proj, edges[a:b + 1], coef,
+                       grams[a:b], rrs[a:b])
 
         if parts > 1:
             assert pool is not None
-            shares = [sh for part in pool.map(run, range(parts)) for sh in part]
+            list(pool.map(run, range(parts)))
         else:
-            shares = run(0)
-        gram = np.zeros((k, k))
-        rr = 0.0
-        for gram_b, rr_b in shares:  # in block order, whatever ran them
-            gram += gram_b
-            rr += rr_b
+            run(0)
+        gram, rr = np.zeros((k, k)), 0.0
+        for i in range(nb):  # in block order, whatever ran them
+            gram += grams[i]
+            rr += float(rrs[i])
         mu = mu_next
         if np.sqrt(rr) / norm_f < tol:
             converged = True
             break
-    return low, gb * sc[None, :], it, converged
+    return low, g[:, None] * sc[None, :], it, converged

@@ -46,3 +46,79 @@ def test_blocked_solver_matches_the_general_one(monkeypatch):
     ref = rpca_ialm(m.T, lower=lower.T, upper=m.T, direction=g, prior=prior.T, **kw)
     assert conv and ref.converged
     np.testing.assert_allclose(sp, ref.sparse.T, atol=1e-7)
+
+
+def _reference_pass(x, y, sc, g, s_lo, s_hi, p, proj, coef, edges):
+    """One iteration of the direction-constrained IALM in whole-array numpy (the kernel's spec)."""
+    inv, c1, c2, t, mu, inv_next, _, _ = coef
+    arg = x - np.outer(g, sc) + y * inv
+    low = proj @ arg
+    d = x - low
+    v = (d + y * inv) * c1 + p * c2
+    sc = np.clip((g @ v - t * g.sum()) / (g @ g), s_lo, s_hi)
+    r = d - np.outer(g, sc)
+    y = y + mu * r
+    nxt = y * inv_next + x - np.outer(g, sc)
+    grams = np.stack([nxt[:, a:b] @ nxt[:, a:b].T for a, b in zip(edges[:-1], edges[1:])])
+    rrs = np.array([np.sum(r[:, a:b] ** 2) for a, b in zip(edges[:-1], edges[1:])])
+    return low, sc, y, grams, rrs
+
+
+@pytest.mark.parametrize("use_p", [True, False])
+def test_compiled_pass_matches_a_numpy_iteration(use_p):
+    rng = np.random.default_rng(3)
+    n = 1000
+    x, y, p = rng.uniform(0, 1, (3, 3, n))
+    y *= 0.3
+    sc = rng.uniform(0, 0.4, n)
+    g = np.array([0.8, 1.0, 1.2])
+    s_lo = rng.uniform(0, 0.8, n)
+    s_hi = s_lo + rng.uniform(0, 0.3, n)  # some clipped below, some above
+    a = rng.normal(size=(3, 3))
+    proj = a @ a.T / 4
+    mu = 1.7
+    coef = np.array([1 / mu, 0.8, 0.2, 0.05, mu, 1 / (1.5 * mu), g.sum(), g @ g])
+    if not use_p:
+        coef[2] = 0.0  # the kernel skips p; the reference adds p * 0
+    edges = np.array([0, 256, 512, 700, 1000])
+    ref = _reference_pass(x, y, sc, g, s_lo, s_hi, p, proj, coef, edges)
+    low = np.empty_like(x)
+    grams, rrs = np.empty((4, 3, 3)), np.empty(4)
+    _rpca._ialm_pass(x, y, sc, low, g, s_lo, s_hi, p, use_p, proj, edges, coef, grams, rrs)
+    for got, want in zip((low, sc, y, grams, rrs), ref):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
+    clipped = (ref[1] == s_lo).sum(), (ref[1] == s_hi).sum()
+    assert min(clipped) > 10  # both bounds were exercised
+
+
+def test_solver_caches_outside_an_unwritable_package_without_warnings(tmp_path):
+    """numba caches the kernel elsewhere when the package's __pycache__ cannot be made.
+
+    A file named ``__pycache__`` stands in for a read-only install (chmod does not stop root).
+    """
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import polcam
+
+    pkg = tmp_path / "site" / "polcam"
+    shutil.copytree(Path(polcam.__file__).parent, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    (pkg / "separation" / "__pycache__").write_text("not a directory")
+    code = ("import numpy as np; from polcam.separation._rpca import _rpca_direction_t; "
+            "x = np.random.default_rng(0).uniform(0.1, 1, (3, 50)); "
+            "sp, it, ok = _rpca_direction_t(x, 0 * x, x / 2, np.ones(3), lam=0.1, beta=0.5, "
+            "tol=1e-9, max_iter=50); print(it, bool(np.isfinite(sp).all()))")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env.update(PYTHONPATH=str(tmp_path / "site"), HOME=str(tmp_path), PYTHONDONTWRITEBYTECODE="1",
+               XDG_CACHE_HOME=str(tmp_path / "cache"))
+    for _ in range(2):  # compiles and stores, then loads
+        out = subprocess.run([sys.executable, "-W", "error", "-c", code], env=env, capture_output=True,
+                             text=True, timeout=120, cwd=tmp_path)
+        assert out.returncode == 0, out.stderr
+        assert out.stderr == ""
+        its, finite = out.stdout.split()
+        assert finite == "True" and int(its) > 1
+    assert list((tmp_path / "cache").rglob("*_ialm_pass*.nbi"))
