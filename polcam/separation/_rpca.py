@@ -189,6 +189,31 @@ def rpca_ialm(m: np.ndarray, *, lam: float | None = None,
     return RPCAResult(low * peak, s * peak, it, converged)
 
 
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _scaled_bounds(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, g: np.ndarray,
+                   peak: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``x = mt / peak``, ``p = prior_t / peak`` and the row-scale bounds of (3, n) matrices.
+
+    Per pixel j: ``s_hi = max(min_i x_ij / g_i, 0)`` (``s g <= m``, ``s >= 0``) and
+    ``s_lo = min(max(max_i (lower_ij / peak) / g_i, 0), s_hi)`` (``s g >= lower``).
+    """
+    n = mt.shape[1]
+    x, p = np.empty((3, n)), np.empty((3, n))
+    s_lo, s_hi = np.empty(n), np.empty(n)
+    for j in range(n):
+        hi, lo = np.inf, -np.inf
+        for i in range(3):
+            xv = mt[i, j] / peak
+            x[i, j] = xv
+            p[i, j] = prior_t[i, j] / peak
+            hi = min(hi, xv / g[i])
+            lo = max(lo, (lower_t[i, j] / peak) / g[i])
+        hi = max(hi, 0.0)
+        s_hi[j] = hi
+        s_lo[j] = min(max(lo, 0.0), hi)
+    return x, p, s_lo, s_hi
+
+
 def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, g: np.ndarray, *,
                      lam: float, beta: float, tol: float, max_iter: int, rho: float = 1.5,
                      pool: Executor | None = None, parts: int = 1) -> tuple[np.ndarray, int, bool]:
@@ -209,16 +234,8 @@ def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, 
     if not peak > 0:
         return np.zeros_like(mt), 0, True
     beta = float(beta) * peak
-    x = mt / peak
+    x, p, s_lo, s_hi = _scaled_bounds(mt, lower_t, prior_t, np.asarray(g, dtype=np.float64), peak)
     norm_f = float(np.linalg.norm(x))
-    p = prior_t / peak
-    gb = g[:, None]
-    # row scales: s g >= lower, s g <= upper (= m), s >= 0; per pixel over the k channels
-    t = x / gb
-    s_hi = np.maximum(np.minimum.reduce(t, axis=0), 0.0)
-    t = np.divide(lower_t / peak, gb, out=t)
-    s_lo = np.minimum(np.maximum(np.maximum.reduce(t, axis=0), 0.0), s_hi)
-    del t
     norm2 = float(np.sqrt(max(np.linalg.eigvalsh(x @ x.T)[-1], 0.0)))
     y = x / max(norm2, float(np.abs(x).max()) / lam)
     mu = 1.25 / norm2

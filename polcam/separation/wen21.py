@@ -40,6 +40,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
+import numba
 import numpy as np
 
 from polcam.errors import MethodError
@@ -69,6 +70,50 @@ _KMEANS_FIT_MAX = 20000
 _KMEANS_MAX_ITER = 100
 _KMEANS_BLOCK = 1 << 15  # points scored at once
 _THREADED_MIN = 1 << 16  # pixels from which the clusters are solved on threads
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _channel_sums(a: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """(3,) sums over the rows of an (n, 3) array, row by row in order (as numpy's ``sum(axis=0)``)."""
+    t0 = t1 = t2 = 0.0
+    for i in range(a.shape[0]):
+        t0 += a[i, 0]
+        t1 += a[i, 1]
+        t2 += a[i, 2]
+    return np.array([t0, t1, t2])
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _gather_t(ic: np.ndarray, isv: np.ndarray, order: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Pixels as columns in ``order``: ``Ic``, ``Isv`` and the raw specular ``min(2 Isv, Ic)``.
+
+    ``ic``, ``isv``: (n, 3); returns three (3, n) arrays with column j = row ``order[j]``.
+    """
+    n = order.shape[0]
+    ic_t, isv_t, raw_t = np.empty((3, n)), np.empty((3, n)), np.empty((3, n))
+    for j in range(n):
+        o = order[j]
+        for c in range(3):
+            a, s = ic[o, c], isv[o, c]
+            ic_t[c, j] = a
+            isv_t[c, j] = s
+            raw_t[c, j] = min(2.0 * s, a)
+    return ic_t, isv_t, raw_t
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _scatter_clipped(diffuse_t: np.ndarray, order: np.ndarray, ic: np.ndarray, isv: np.ndarray,
+                     peak: float) -> np.ndarray:  # pragma: no cover - compiled
+    """(n, 3) ``peak * clip(D, 0, max(Ic - Isv, 0))`` with row ``order[j]`` from column j of D."""
+    n = order.shape[0]
+    out = np.empty((n, 3))
+    for j in range(n):
+        o = order[j]
+        for c in range(3):
+            top = max(ic[o, c] - isv[o, c], 0.0)
+            out[o, c] = min(max(diffuse_t[c, j], 0.0), top) * peak
+    return out
 
 
 def polarization_chromaticity(ic: np.ndarray, isv: np.ndarray) -> np.ndarray:
@@ -136,7 +181,7 @@ def polarization_illuminant(isv: np.ndarray, *, floor: float = 0.05) -> np.ndarr
         (3,) float64 with mean 1; white ``(1, 1, 1)`` when there is no
         polarized light at all.
     """
-    total = np.asarray(isv, dtype=np.float64).reshape(-1, 3).sum(axis=0)
+    total = _channel_sums(np.ascontiguousarray(np.reshape(isv, (-1, 3)), dtype=np.float64))
     if not total.sum() > 0:
         return np.ones(3)
     g = np.maximum(total / total.mean(), floor)
@@ -342,9 +387,7 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
 
     chro = polarization_chromaticity(ic, isv)
     labels, _ = kmeans(chro, int(clusters), rng=np.random.default_rng(int(seed)))
-    raw_s = np.minimum(2.0 * isv, ic)
     scale = float(ic.mean())
-    diffuse = np.empty_like(ic)
     iterations = 0
     converged = True
     order = np.argsort(labels, kind="stable")
@@ -352,7 +395,7 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
 
     # pixels as columns, sorted by cluster: each cluster's matrices are contiguous column
     # ranges, gathered once for all
-    ic_t, isv_t, raw_t = (np.take(a.T, order, axis=1) for a in (ic, isv, raw_s))
+    ic_t, isv_t, raw_t = _gather_t(ic, isv, order)
     diffuse_t = np.empty_like(ic_t)
 
     def cluster(k: int, pool: ThreadPoolExecutor | None = None, parts: int = 1) -> tuple[int, bool]:
@@ -388,12 +431,7 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
     for its, conv in results:
         iterations = max(iterations, its)
         converged = converged and conv
-    diffuse[order] = diffuse_t.T
-    top = np.subtract(ic, isv)
-    np.maximum(top, 0.0, out=top)
-    np.maximum(diffuse, 0.0, out=diffuse)  # clip to [0, max(Ic - Isv, 0)]
-    np.minimum(diffuse, top, out=diffuse)
-    diffuse *= peak
+    diffuse = _scatter_clipped(diffuse_t, order, ic, isv, peak)
     info = {
         "iterations": iterations,
         "converged": converged,
