@@ -116,6 +116,75 @@ def _scatter_clipped(diffuse_t: np.ndarray, order: np.ndarray, ic: np.ndarray, i
     return out
 
 
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _min_rgb(ic: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """(n,) ``min over RGB of max(Ic, 0)`` of an (n, 3) array."""
+    out = np.empty(ic.shape[0])
+    for i in range(ic.shape[0]):
+        out[i] = min(min(max(ic[i, 0], 0.0), max(ic[i, 1], 0.0)), max(ic[i, 2], 0.0))
+    return out
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _chromaticity(ic: np.ndarray, isv: np.ndarray, imin_bar: float) -> np.ndarray:  # pragma: no cover
+    """(n, 3) ``I_rawD / (sum over RGB of I_rawD + imin_bar)``, 0 where that sum is not > 0."""
+    n = ic.shape[0]
+    out = np.empty((n, 3))
+    for i in range(n):
+        r0 = max(ic[i, 0] - isv[i, 0] * 2.0, 0.0)
+        r1 = max(ic[i, 1] - isv[i, 1] * 2.0, 0.0)
+        r2 = max(ic[i, 2] - isv[i, 2] * 2.0, 0.0)
+        den = ((r0 + r1) + r2) + imin_bar
+        if den > 0:
+            out[i, 0], out[i, 1], out[i, 2] = r0 / den, r1 / den, r2 / den
+        else:
+            out[i, 0] = out[i, 1] = out[i, 2] = 0.0
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _cluster_order(labels: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
+    """The stable sort of ``labels`` in [0, k) by counting: ``order`` (n,) and ``bounds`` (k + 1,).
+
+    Cluster c's pixels are ``order[bounds[c]:bounds[c + 1]]``, in increasing index.
+    """
+    bounds = np.zeros(k + 1, dtype=np.int64)
+    for lab in labels:
+        bounds[lab + 1] += 1
+    for c in range(k):
+        bounds[c + 1] += bounds[c]
+    nxt = bounds[:-1].copy()
+    order = np.empty(labels.shape[0], dtype=np.int64)
+    for i in range(labels.shape[0]):
+        lab = labels[i]
+        order[nxt[lab]] = i
+        nxt[lab] += 1
+    return order, bounds
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def _normalised(ic: np.ndarray, isv: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:  # pragma: no cover
+    """``max(Ic, 0) / peak``, ``max(min(Isv, Ic), 0) / peak`` (n, 3) and ``peak = max(max(Ic, 0))``.
+
+    Undivided when ``peak`` is not > 0 (NaN propagates to ``peak``, as numpy's max does).
+    """
+    n = ic.shape[0]
+    a, s = np.empty((n, 3)), np.empty((n, 3))
+    peak = 0.0
+    for i in range(n):
+        for c in range(3):
+            v = np.maximum(ic[i, c], 0.0)
+            a[i, c] = v
+            s[i, c] = np.maximum(np.minimum(isv[i, c], ic[i, c]), 0.0)
+            peak = np.maximum(peak, v)
+    if peak > 0:
+        for i in range(n):
+            for c in range(3):
+                a[i, c] /= peak
+                s[i, c] /= peak
+    return a, s, peak
+
+
 def polarization_chromaticity(ic: np.ndarray, isv: np.ndarray) -> np.ndarray:
     """Wen'21's polarization chromaticity image.
 
@@ -141,22 +210,11 @@ def polarization_chromaticity(ic: np.ndarray, isv: np.ndarray) -> np.ndarray:
             f"Ic of shape {ic.shape} and Isv of shape {isv.shape}: "
             "expected two equal (..., 3) arrays"
         )
-    raw_d = np.multiply(isv, 2.0)
-    np.subtract(ic, raw_d, out=raw_d)
-    np.maximum(raw_d, 0.0, out=raw_d)
     if not ic.size:
-        return raw_d
-    # channel by channel rather than reductions along the short last axis (same sums, faster)
-    c = np.maximum(ic, 0.0)
-    imin_bar = float(np.minimum(np.minimum(c[..., 0], c[..., 1]), c[..., 2]).mean())
-    den = np.add(raw_d[..., 0], raw_d[..., 1])
-    den += raw_d[..., 2]
-    den += imin_bar
-    ok = den > 0
-    if ok.all():
-        raw_d /= den[..., None]
-        return raw_d
-    return np.where(ok[..., None], raw_d / np.where(ok, den, 1.0)[..., None], 0.0)
+        return np.maximum(ic - 2.0 * isv, 0.0)
+    ic2, isv2 = (np.ascontiguousarray(a.reshape(-1, 3)) for a in (ic, isv))
+    imin_bar = float(_min_rgb(ic2).mean())
+    return _chromaticity(ic2, isv2, imin_bar).reshape(ic.shape)
 
 
 def polarization_illuminant(isv: np.ndarray, *, floor: float = 0.05) -> np.ndarray:
@@ -368,16 +426,11 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
         raise MethodError(f"wen21: fit of shapes {np.shape(fit.ic)}, {np.shape(fit.isv)}: expected "
                           f"Ic and Isv of the stack's ({h}, {w}, 3)")
     fit = Sinusoid(np.asarray(fit.ic, dtype=np.float64), np.asarray(fit.isv, dtype=np.float64), fit.phi)
-    ic = np.maximum(fit.ic, 0.0).reshape(-1, 3)
-    isv = np.minimum(fit.isv, fit.ic)
-    isv = np.maximum(isv, 0.0, out=isv).reshape(-1, 3)
-    peak = float(ic.max()) if ic.size else 0.0
+    # Ic >= 0, 0 <= Isv <= Ic; the method is invariant to exposure: work on [0, 1]
+    ic, isv, peak = _normalised(fit.ic.reshape(-1, 3), fit.isv.reshape(-1, 3))
     if not peak > 0:  # all black: no light, no specular
         info0 = {"iterations": 0, "converged": True, "clusters": 0, "illuminant": [1.0, 1.0, 1.0]}
         return np.zeros((h, w, 3)), info0
-    # The method is invariant to exposure; work on [0, 1] whatever the input's level.
-    ic /= peak
-    isv /= peak
 
     if isinstance(illuminant, str):
         gamma = polarization_illuminant(isv) if illuminant == "polarization" else np.ones(3)
@@ -390,8 +443,7 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
     scale = float(ic.mean())
     iterations = 0
     converged = True
-    order = np.argsort(labels, kind="stable")
-    bounds = np.searchsorted(labels[order], np.arange(labels.max() + 2 if labels.size else 1))
+    order, bounds = _cluster_order(labels, int(labels.max()) + 1 if labels.size else 0)
 
     # pixels as columns, sorted by cluster: each cluster's matrices are contiguous column
     # ranges, gathered once for all
