@@ -9,9 +9,9 @@ case on pixel-major (k, n) matrices, iterated block by block
 from __future__ import annotations
 
 from concurrent.futures import Executor
+from itertools import pairwise
 from typing import Any, NamedTuple
 
-import numba
 import numpy as np
 
 from polcam.errors import MethodError
@@ -189,31 +189,6 @@ def rpca_ialm(m: np.ndarray, *, lam: float | None = None,
     return RPCAResult(low * peak, s * peak, it, converged)
 
 
-@numba.njit(cache=True, nogil=True, fastmath=False)
-def _scaled_bounds(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, g: np.ndarray,
-                   peak: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``x = mt / peak``, ``p = prior_t / peak`` and the row-scale bounds of (3, n) matrices.
-
-    Per pixel j: ``s_hi = max(min_i x_ij / g_i, 0)`` (``s g <= m``, ``s >= 0``) and
-    ``s_lo = min(max(max_i (lower_ij / peak) / g_i, 0), s_hi)`` (``s g >= lower``).
-    """
-    n = mt.shape[1]
-    x, p = np.empty((3, n)), np.empty((3, n))
-    s_lo, s_hi = np.empty(n), np.empty(n)
-    for j in range(n):
-        hi, lo = np.inf, -np.inf
-        for i in range(3):
-            xv = mt[i, j] / peak
-            x[i, j] = xv
-            p[i, j] = prior_t[i, j] / peak
-            hi = min(hi, xv / g[i])
-            lo = max(lo, (lower_t[i, j] / peak) / g[i])
-        hi = max(hi, 0.0)
-        s_hi[j] = hi
-        s_lo[j] = min(max(lo, 0.0), hi)
-    return x, p, s_lo, s_hi
-
-
 def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, g: np.ndarray, *,
                      lam: float, beta: float, tol: float, max_iter: int, rho: float = 1.5,
                      pool: Executor | None = None, parts: int = 1) -> tuple[np.ndarray, int, bool]:
@@ -229,12 +204,13 @@ def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, 
     iterations : int
     converged : bool
     """
-    k, n = mt.shape
     peak = float(np.abs(mt).max()) if mt.size else 0.0
     if not peak > 0:
         return np.zeros_like(mt), 0, True
     beta = float(beta) * peak
-    x, p, s_lo, s_hi = _scaled_bounds(mt, lower_t, prior_t, np.asarray(g, dtype=np.float64), peak)
+    from polcam.separation._kernels import scaled_bounds  # numba: imported on first use
+
+    x, p, s_lo, s_hi = scaled_bounds(mt, lower_t, prior_t, np.asarray(g, dtype=np.float64), peak)
     norm_f = float(np.linalg.norm(x))
     norm2 = float(np.sqrt(max(np.linalg.eigvalsh(x @ x.T)[-1], 0.0)))
     y = x / max(norm2, float(np.abs(x).max()) / lam)
@@ -249,71 +225,6 @@ def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, 
 _IALM_BLOCK = 8192  # pixels per block: a block's shares of the sums are kept apart (thread-independent)
 
 
-@numba.njit(cache=True, nogil=True, fastmath=False)
-def _ialm_pass(x: np.ndarray, y: np.ndarray, sc: np.ndarray, low: np.ndarray, g: np.ndarray,
-               s_lo: np.ndarray, s_hi: np.ndarray, p: np.ndarray, use_p: bool, proj: np.ndarray,
-               bounds: np.ndarray, coef: np.ndarray, gram_out: np.ndarray,
-               rr_out: np.ndarray) -> None:  # pragma: no cover - compiled
-    """One IALM iteration over the pixel blocks ``bounds[i]:bounds[i + 1]`` of (3, n) matrices.
-
-    Per pixel column j, with ``coef = (1/mu, c1, c2, t, mu, 1/mu_next, sum(g), g.g)``
-    (``c1 = mu/(mu+beta)``, ``c2 = beta/(mu+beta)``, ``t = lam/(mu+beta)``)::
-
-        a    = (x - g sc) + y / mu          L = proj a          d = x - L
-        v    = (d + y / mu) c1 + p c2       sc = clip((g.v - t sum(g)) / g.g, s_lo, s_hi)
-        r    = d - g sc                     y += r mu
-        next = (y / mu_next + x) - g sc     (the next thresholding's argument)
-
-    ``low``, ``sc`` and ``y`` are written in place (``p`` is read only when ``use_p``);
-    block i's Gram matrix of ``next`` and its ``|r|^2``, summed over the columns in order,
-    go to ``gram_out[i]`` and ``rr_out[i]``.
-    """
-    inv, c1, c2, t, mu, inv_next, gsum, gg = (coef[0], coef[1], coef[2], coef[3], coef[4],
-                                              coef[5], coef[6], coef[7])
-    tg = t * gsum
-    g0, g1, g2 = g[0], g[1], g[2]
-    p00, p01, p02 = proj[0, 0], proj[0, 1], proj[0, 2]
-    p10, p11, p12 = proj[1, 0], proj[1, 1], proj[1, 2]
-    p20, p21, p22 = proj[2, 0], proj[2, 1], proj[2, 2]
-    for blk in range(bounds.shape[0] - 1):
-        s00 = s10 = s11 = s20 = s21 = s22 = rs = 0.0
-        for j in range(bounds[blk], bounds[blk + 1]):
-            x0, x1, x2 = x[0, j], x[1, j], x[2, j]
-            s0 = sc[j]
-            yi0, yi1, yi2 = y[0, j] * inv, y[1, j] * inv, y[2, j] * inv
-            a0, a1, a2 = (x0 - g0 * s0) + yi0, (x1 - g1 * s0) + yi1, (x2 - g2 * s0) + yi2
-            l0 = p00 * a0 + p01 * a1 + p02 * a2
-            l1 = p10 * a0 + p11 * a1 + p12 * a2
-            l2 = p20 * a0 + p21 * a1 + p22 * a2
-            low[0, j], low[1, j], low[2, j] = l0, l1, l2
-            d0, d1, d2 = x0 - l0, x1 - l1, x2 - l2
-            v0, v1, v2 = (d0 + yi0) * c1, (d1 + yi1) * c1, (d2 + yi2) * c1
-            if use_p:
-                v0, v1, v2 = v0 + p[0, j] * c2, v1 + p[1, j] * c2, v2 + p[2, j] * c2
-            q = ((g0 * v0 + g1 * v1 + g2 * v2) - tg) / gg
-            q = min(max(q, s_lo[j]), s_hi[j])  # s_lo <= s_hi
-            sc[j] = q
-            r0, r1, r2 = d0 - g0 * q, d1 - g1 * q, d2 - g2 * q
-            y0, y1, y2 = y[0, j] + r0 * mu, y[1, j] + r1 * mu, y[2, j] + r2 * mu
-            y[0, j], y[1, j], y[2, j] = y0, y1, y2
-            n0 = (y0 * inv_next + x0) - g0 * q
-            n1 = (y1 * inv_next + x1) - g1 * q
-            n2 = (y2 * inv_next + x2) - g2 * q
-            s00 += n0 * n0
-            s10 += n1 * n0
-            s11 += n1 * n1
-            s20 += n2 * n0
-            s21 += n2 * n1
-            s22 += n2 * n2
-            rs += r0 * r0 + r1 * r1 + r2 * r2
-        gram = gram_out[blk]
-        gram[0, 0], gram[1, 1], gram[2, 2] = s00, s11, s22
-        gram[1, 0] = gram[0, 1] = s10
-        gram[2, 0] = gram[0, 2] = s20
-        gram[2, 1] = gram[1, 2] = s21
-        rr_out[blk] = rs
-
-
 def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarray, s_hi: np.ndarray,
                     p: np.ndarray | None, *, lam: float, beta: float, mu: float, mu_max: float,
                     rho: float, tol: float, max_iter: int, norm_f: float,
@@ -322,7 +233,7 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
     """The iterations of :func:`rpca_ialm` with a direction, for a wide (3, n) matrix.
 
     The same steps as the general loop, element by element, in one compiled pass
-    over the pixels per iteration (:func:`_ialm_pass`): the Gram matrix the next
+    over the pixels per iteration (:func:`polcam.separation._kernels.ialm_pass`): the Gram matrix the next
     singular value thresholding needs is accumulated in the pass that updates
     ``S`` and ``Y``, and ``S`` is kept as its row scales ``sc`` (``S = g sc``).
     ``y`` is updated in place.
@@ -344,6 +255,8 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
         raise MethodError(f"_ialm_direction: matrix of shape {x.shape}: expected 3 rows")
     x, y, g = (np.ascontiguousarray(a, dtype=np.float64) for a in (x, y, g))
     s_lo, s_hi = (np.ascontiguousarray(a, dtype=np.float64) for a in (s_lo, s_hi))
+    from polcam.separation._kernels import ialm_pass  # numba: imported on first use
+
     use_p = beta > 0 and p is not None
     pp = np.ascontiguousarray(p, dtype=np.float64) if use_p else x
     sc, low = np.zeros(n), np.empty_like(x)
@@ -355,7 +268,7 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
     grams, rrs = np.empty((nb, k, k)), np.empty(nb)
     # the Gram matrix of the first thresholding's argument x - S + Y / mu (S = 0)
     gram = np.zeros((k, k))
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in pairwise(edges):
         arg = y[:, a:b] * (1.0 / mu)
         arg += x[:, a:b]
         gram += arg @ arg.T
@@ -374,7 +287,7 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
 
         def run(r: int, proj: np.ndarray = proj, coef: np.ndarray = coef) -> None:
             a, b = cuts[r], cuts[r + 1]
-            _ialm_pass(x, y, sc, low, g, s_lo, s_hi, pp, use_p, proj, edges[a:b + 1], coef,
+            ialm_pass(x, y, sc, low, g, s_lo, s_hi, pp, use_p, proj, edges[a:b + 1], coef,
                        grams[a:b], rrs[a:b])
 
         if parts > 1:

@@ -40,7 +40,6 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-import numba
 import numpy as np
 
 from polcam.errors import MethodError
@@ -72,119 +71,6 @@ _KMEANS_BLOCK = 1 << 15  # points scored at once
 _THREADED_MIN = 1 << 16  # pixels from which the clusters are solved on threads
 
 
-@numba.njit(cache=True, nogil=True, fastmath=False)
-def _channel_sums(a: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """(3,) sums over the rows of an (n, 3) array, row by row in order (as numpy's ``sum(axis=0)``)."""
-    t0 = t1 = t2 = 0.0
-    for i in range(a.shape[0]):
-        t0 += a[i, 0]
-        t1 += a[i, 1]
-        t2 += a[i, 2]
-    return np.array([t0, t1, t2])
-
-
-@numba.njit(cache=True, nogil=True, fastmath=False)
-def _gather_t(ic: np.ndarray, isv: np.ndarray, order: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # pragma: no cover - compiled
-    """Pixels as columns in ``order``: ``Ic``, ``Isv`` and the raw specular ``min(2 Isv, Ic)``.
-
-    ``ic``, ``isv``: (n, 3); returns three (3, n) arrays with column j = row ``order[j]``.
-    """
-    n = order.shape[0]
-    ic_t, isv_t, raw_t = np.empty((3, n)), np.empty((3, n)), np.empty((3, n))
-    for j in range(n):
-        o = order[j]
-        for c in range(3):
-            a, s = ic[o, c], isv[o, c]
-            ic_t[c, j] = a
-            isv_t[c, j] = s
-            raw_t[c, j] = min(2.0 * s, a)
-    return ic_t, isv_t, raw_t
-
-
-@numba.njit(cache=True, nogil=True, fastmath=False)
-def _scatter_clipped(diffuse_t: np.ndarray, order: np.ndarray, ic: np.ndarray, isv: np.ndarray,
-                     peak: float) -> np.ndarray:  # pragma: no cover - compiled
-    """(n, 3) ``peak * clip(D, 0, max(Ic - Isv, 0))`` with row ``order[j]`` from column j of D."""
-    n = order.shape[0]
-    out = np.empty((n, 3))
-    for j in range(n):
-        o = order[j]
-        for c in range(3):
-            top = max(ic[o, c] - isv[o, c], 0.0)
-            out[o, c] = min(max(diffuse_t[c, j], 0.0), top) * peak
-    return out
-
-
-@numba.njit(cache=True, nogil=True, fastmath=False)
-def _min_rgb(ic: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
-    """(n,) ``min over RGB of max(Ic, 0)`` of an (n, 3) array."""
-    out = np.empty(ic.shape[0])
-    for i in range(ic.shape[0]):
-        out[i] = min(min(max(ic[i, 0], 0.0), max(ic[i, 1], 0.0)), max(ic[i, 2], 0.0))
-    return out
-
-
-@numba.njit(cache=True, nogil=True, fastmath=False)
-def _chromaticity(ic: np.ndarray, isv: np.ndarray, imin_bar: float) -> np.ndarray:  # pragma: no cover
-    """(n, 3) ``I_rawD / (sum over RGB of I_rawD + imin_bar)``, 0 where that sum is not > 0."""
-    n = ic.shape[0]
-    out = np.empty((n, 3))
-    for i in range(n):
-        r0 = max(ic[i, 0] - isv[i, 0] * 2.0, 0.0)
-        r1 = max(ic[i, 1] - isv[i, 1] * 2.0, 0.0)
-        r2 = max(ic[i, 2] - isv[i, 2] * 2.0, 0.0)
-        den = ((r0 + r1) + r2) + imin_bar
-        if den > 0:
-            out[i, 0], out[i, 1], out[i, 2] = r0 / den, r1 / den, r2 / den
-        else:
-            out[i, 0] = out[i, 1] = out[i, 2] = 0.0
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def _cluster_order(labels: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
-    """The stable sort of ``labels`` in [0, k) by counting: ``order`` (n,) and ``bounds`` (k + 1,).
-
-    Cluster c's pixels are ``order[bounds[c]:bounds[c + 1]]``, in increasing index.
-    """
-    bounds = np.zeros(k + 1, dtype=np.int64)
-    for lab in labels:
-        bounds[lab + 1] += 1
-    for c in range(k):
-        bounds[c + 1] += bounds[c]
-    nxt = bounds[:-1].copy()
-    order = np.empty(labels.shape[0], dtype=np.int64)
-    for i in range(labels.shape[0]):
-        lab = labels[i]
-        order[nxt[lab]] = i
-        nxt[lab] += 1
-    return order, bounds
-
-
-@numba.njit(cache=True, nogil=True, fastmath=False)
-def _normalised(ic: np.ndarray, isv: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:  # pragma: no cover
-    """``max(Ic, 0) / peak``, ``max(min(Isv, Ic), 0) / peak`` (n, 3) and ``peak = max(max(Ic, 0))``.
-
-    Undivided when ``peak`` is not > 0 (NaN propagates to ``peak``, as numpy's max does).
-    """
-    n = ic.shape[0]
-    a, s = np.empty((n, 3)), np.empty((n, 3))
-    peak = 0.0
-    for i in range(n):
-        for c in range(3):
-            v = np.maximum(ic[i, c], 0.0)
-            a[i, c] = v
-            s[i, c] = np.maximum(np.minimum(isv[i, c], ic[i, c]), 0.0)
-            peak = np.maximum(peak, v)
-    if peak > 0:
-        for i in range(n):
-            for c in range(3):
-                a[i, c] /= peak
-                s[i, c] /= peak
-    return a, s, peak
-
-
 def polarization_chromaticity(ic: np.ndarray, isv: np.ndarray) -> np.ndarray:
     """Wen'21's polarization chromaticity image.
 
@@ -213,8 +99,10 @@ def polarization_chromaticity(ic: np.ndarray, isv: np.ndarray) -> np.ndarray:
     if not ic.size:
         return np.maximum(ic - 2.0 * isv, 0.0)
     ic2, isv2 = (np.ascontiguousarray(a.reshape(-1, 3)) for a in (ic, isv))
-    imin_bar = float(_min_rgb(ic2).mean())
-    return _chromaticity(ic2, isv2, imin_bar).reshape(ic.shape)
+    from polcam.separation import _kernels  # numba: imported on first use
+
+    imin_bar = float(_kernels.min_rgb(ic2).mean())
+    return _kernels.chromaticity(ic2, isv2, imin_bar).reshape(ic.shape)
 
 
 def polarization_illuminant(isv: np.ndarray, *, floor: float = 0.05) -> np.ndarray:
@@ -239,7 +127,9 @@ def polarization_illuminant(isv: np.ndarray, *, floor: float = 0.05) -> np.ndarr
         (3,) float64 with mean 1; white ``(1, 1, 1)`` when there is no
         polarized light at all.
     """
-    total = _channel_sums(np.ascontiguousarray(np.reshape(isv, (-1, 3)), dtype=np.float64))
+    from polcam.separation import _kernels  # numba: imported on first use
+
+    total = _kernels.channel_sums(np.ascontiguousarray(np.reshape(isv, (-1, 3)), dtype=np.float64))
     if not total.sum() > 0:
         return np.ones(3)
     g = np.maximum(total / total.mean(), floor)
@@ -427,7 +317,9 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
                           f"Ic and Isv of the stack's ({h}, {w}, 3)")
     fit = Sinusoid(np.asarray(fit.ic, dtype=np.float64), np.asarray(fit.isv, dtype=np.float64), fit.phi)
     # Ic >= 0, 0 <= Isv <= Ic; the method is invariant to exposure: work on [0, 1]
-    ic, isv, peak = _normalised(fit.ic.reshape(-1, 3), fit.isv.reshape(-1, 3))
+    from polcam.separation import _kernels  # numba: imported on first use
+
+    ic, isv, peak = _kernels.normalised(fit.ic.reshape(-1, 3), fit.isv.reshape(-1, 3))
     if not peak > 0:  # all black: no light, no specular
         info0 = {"iterations": 0, "converged": True, "clusters": 0, "illuminant": [1.0, 1.0, 1.0]}
         return np.zeros((h, w, 3)), info0
@@ -443,11 +335,11 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
     scale = float(ic.mean())
     iterations = 0
     converged = True
-    order, bounds = _cluster_order(labels, int(labels.max()) + 1 if labels.size else 0)
+    order, bounds = _kernels.cluster_order(labels, int(labels.max()) + 1 if labels.size else 0)
 
     # pixels as columns, sorted by cluster: each cluster's matrices are contiguous column
     # ranges, gathered once for all
-    ic_t, isv_t, raw_t = _gather_t(ic, isv, order)
+    ic_t, isv_t, raw_t = _kernels.gather_t(ic, isv, order)
     diffuse_t = np.empty_like(ic_t)
 
     def cluster(k: int, pool: ThreadPoolExecutor | None = None, parts: int = 1) -> tuple[int, bool]:
@@ -483,7 +375,7 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
     for its, conv in results:
         iterations = max(iterations, its)
         converged = converged and conv
-    diffuse = _scatter_clipped(diffuse_t, order, ic, isv, peak)
+    diffuse = _kernels.scatter_clipped(diffuse_t, order, ic, isv, peak)
     info = {
         "iterations": iterations,
         "converged": converged,
