@@ -46,7 +46,7 @@ from polcam.errors import MethodError
 from polcam.parallel import default_workers
 from polcam.separation._registry import register
 from polcam.separation._rpca import RPCAResult, _rpca_direction_t, rpca_ialm
-from polcam.polarimetry import Sinusoid, fit_sinusoid
+from polcam.polarimetry import Sinusoid, maps
 
 __all__ = [
     "REFERENCE",
@@ -241,14 +241,19 @@ def _check_options(clusters: Any, seed: Any, lam_scale: Any, beta: Any, illumina
             )
 
 
-def _fit(arr: np.ndarray) -> Sinusoid:
-    """The float64 sinusoid fit of the stack with NaN as 0, +inf as 1 and negatives as 0."""
+def _fit(arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Float64 ``Ic`` and ``Isv`` of the stack's sinusoid fit, with NaN as 0, +inf as 1 and negatives as 0.
+
+    The two maps of :func:`polcam.polarimetry.fit_sinusoid` (the phase is not needed).
+    """
     if arr.dtype in (np.float32, np.float64):
         lo, hi = (float(arr.min()), float(arr.max())) if arr.size else (0.0, 0.0)
         if lo >= 0.0 and np.isfinite(hi):  # clean (what separate passes): no copy of the stack
-            return fit_sinusoid(arr, dtype=np.float64)
+            m = maps(arr, ("ic", "isv"), dtype=np.float64)
+            return m["ic"], m["isv"]
     arr = np.clip(np.nan_to_num(arr.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0), 0.0, None)
-    return fit_sinusoid(arr)
+    m = maps(arr, ("ic", "isv"))
+    return m["ic"], m["isv"]
 
 
 @register("wen21", kind="stack", reference=REFERENCE)
@@ -311,15 +316,17 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
     _check_options(clusters, seed, lam_scale, beta, illuminant, tol, max_iter)
     _, h, w, _ = arr.shape
     if fit is None:
-        fit = _fit(arr)
+        ic0, isv0 = _fit(arr)
     elif not (np.shape(fit.ic) == np.shape(fit.isv) == (h, w, 3)):
         raise MethodError(f"wen21: fit of shapes {np.shape(fit.ic)}, {np.shape(fit.isv)}: expected "
                           f"Ic and Isv of the stack's ({h}, {w}, 3)")
-    fit = Sinusoid(np.asarray(fit.ic, dtype=np.float64), np.asarray(fit.isv, dtype=np.float64), fit.phi)
+    else:
+        ic0, isv0 = fit.ic, fit.isv
     # Ic >= 0, 0 <= Isv <= Ic; the method is invariant to exposure: work on [0, 1]
     from polcam.separation import _kernels  # numba: imported on first use
 
-    ic, isv, peak = _kernels.normalised(fit.ic.reshape(-1, 3), fit.isv.reshape(-1, 3))
+    ic, isv, peak = _kernels.normalised(np.asarray(ic0, dtype=np.float64).reshape(-1, 3),
+                                        np.asarray(isv0, dtype=np.float64).reshape(-1, 3))
     if not peak > 0:  # all black: no light, no specular
         info0 = {"iterations": 0, "converged": True, "clusters": 0, "illuminant": [1.0, 1.0, 1.0]}
         return np.zeros((h, w, 3)), info0
