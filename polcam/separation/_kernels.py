@@ -1,4 +1,4 @@
-"""Compiled loops of wen21 and its RPCA solver (private; numba, imported on first use).
+"""Compiled loops of wen21, its RPCA solver and polcam.separate (private; numba, imported on first use).
 
 Each loop does the element operations of the numpy expression its docstring gives, in the
 same order, so results match that expression (the sums' order is stated where it matters).
@@ -11,8 +11,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["channel_sums", "chromaticity", "cluster_order", "gather_t", "ialm_pass", "min_rgb",
-            "normalised", "scaled_bounds", "scatter_clipped"]
+__all__ = ["channel_sums", "chromaticity", "cluster_order", "finish_layers", "gather_t", "ialm_pass",
+           "min_rgb", "normalised", "scaled_bounds", "scatter_clipped"]
 
 
 @numba.njit(cache=True, nogil=True, fastmath=False)
@@ -216,3 +216,21 @@ def normalised(ic: np.ndarray, isv: np.ndarray) -> tuple[np.ndarray, np.ndarray,
                 a[i, c] /= peak
                 s[i, c] /= peak
     return a, s, peak
+
+
+@numba.njit(cache=True, nogil=True, fastmath=False)
+def finish_layers(diffuse: np.ndarray, reference: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """float32 ``D = clip(nan_to_num(diffuse, nan=0, posinf=0, neginf=0), 0, reference)`` and
+    ``reference - D`` (the difference taken in float64) of flat float64 arrays."""
+    n = diffuse.shape[0]
+    d32, s32 = np.empty(n, dtype=np.float32), np.empty(n, dtype=np.float32)
+    for i in range(n):
+        v = diffuse[i]
+        if not np.isfinite(v):
+            v = 0.0
+        r = reference[i]
+        v = min(max(v, 0.0), r)
+        d32[i] = np.float32(v)
+        s32[i] = np.float32(r - v)
+    return d32, s32
