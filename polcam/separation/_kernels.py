@@ -55,13 +55,15 @@ def ialm_pass(x: np.ndarray, y: np.ndarray, sc: np.ndarray, low: np.ndarray, g: 
         r    = d - g sc                     y += r mu
         next = (y / mu_next + x) - g sc     (the next thresholding's argument)
 
-    ``low``, ``sc`` and ``y`` are written in place (``p`` is read only when ``use_p``);
+    ``sc``, ``y`` and ``low`` (when it has n columns) are written in place (``p`` is read only
+    when ``use_p``);
     block i's Gram matrix of ``next`` and its ``|r|^2``, summed over the columns in order,
     go to ``gram_out[i]`` and ``rr_out[i]``.
     """
     inv, c1, c2, t, mu, inv_next, gsum, gg = (coef[0], coef[1], coef[2], coef[3], coef[4],
                                               coef[5], coef[6], coef[7])
     tg = t * gsum
+    keep_low = low.shape[1] == x.shape[1]
     g0, g1, g2 = g[0], g[1], g[2]
     p00, p01, p02 = proj[0, 0], proj[0, 1], proj[0, 2]
     p10, p11, p12 = proj[1, 0], proj[1, 1], proj[1, 2]
@@ -76,7 +78,8 @@ def ialm_pass(x: np.ndarray, y: np.ndarray, sc: np.ndarray, low: np.ndarray, g: 
             l0 = p00 * a0 + p01 * a1 + p02 * a2
             l1 = p10 * a0 + p11 * a1 + p12 * a2
             l2 = p20 * a0 + p21 * a1 + p22 * a2
-            low[0, j], low[1, j], low[2, j] = l0, l1, l2
+            if keep_low:
+                low[0, j], low[1, j], low[2, j] = l0, l1, l2
             d0, d1, d2 = x0 - l0, x1 - l1, x2 - l2
             v0, v1, v2 = (d0 + yi0) * c1, (d1 + yi1) * c1, (d2 + yi2) * c1
             if use_p:

@@ -217,7 +217,8 @@ def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, 
     mu = 1.25 / norm2
     _, sp, it, converged = _ialm_direction(x, y, g, s_lo, s_hi, p, lam=float(lam), beta=beta, mu=mu,
                                            mu_max=mu * 1e7, rho=float(rho), tol=float(tol),
-                                           max_iter=int(max_iter), norm_f=norm_f, pool=pool, parts=parts)
+                                           max_iter=int(max_iter), norm_f=norm_f, pool=pool, parts=parts,
+                                           want_low=False)
     sp *= peak
     return sp, it, converged
 
@@ -228,7 +229,7 @@ _IALM_BLOCK = 8192  # pixels per block: a block's shares of the sums are kept ap
 def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarray, s_hi: np.ndarray,
                     p: np.ndarray | None, *, lam: float, beta: float, mu: float, mu_max: float,
                     rho: float, tol: float, max_iter: int, norm_f: float,
-                    pool: Executor | None = None, parts: int = 1
+                    pool: Executor | None = None, parts: int = 1, want_low: bool = True
                     ) -> tuple[np.ndarray, np.ndarray, int, bool]:
     """The iterations of :func:`rpca_ialm` with a direction, for a wide (3, n) matrix.
 
@@ -246,7 +247,7 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
     Returns
     -------
     low, sparse : numpy.ndarray
-        (3, n) float64.
+        (3, n) float64 (``low`` (3, 0) unless ``want_low``).
     iterations : int
     converged : bool
     """
@@ -259,7 +260,7 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
 
     use_p = beta > 0 and p is not None
     pp = np.ascontiguousarray(p, dtype=np.float64) if use_p else x
-    sc, low = np.zeros(n), np.empty_like(x)
+    sc, low = np.zeros(n), np.empty((k, n if want_low else 0))
     edges = np.arange(0, n + _IALM_BLOCK, _IALM_BLOCK, dtype=np.int64)
     edges[-1] = n
     nb = len(edges) - 1

@@ -85,7 +85,13 @@ def test_compiled_pass_matches_a_numpy_iteration(use_p):
     ref = _reference_pass(x, y, sc, g, s_lo, s_hi, p, proj, coef, edges)
     low = np.empty_like(x)
     grams, rrs = np.empty((4, 3, 3)), np.empty(4)
+    y0, sc0 = y.copy(), sc.copy()
     _kernels.ialm_pass(x, y, sc, low, g, s_lo, s_hi, p, use_p, proj, edges, coef, grams, rrs)
+    # without the low-rank part (a (3, 0) array): the same update of everything else
+    y2, sc2, grams2, rrs2 = y0.copy(), sc0.copy(), np.empty((4, 3, 3)), np.empty(4)
+    _kernels.ialm_pass(x, y2, sc2, np.empty((3, 0)), g, s_lo, s_hi, p, use_p, proj, edges, coef, grams2, rrs2)
+    for a, b in ((y2, y), (sc2, sc), (grams2, grams), (rrs2, rrs)):
+        np.testing.assert_array_equal(a, b)
     for got, want in zip((low, sc, y, grams, rrs), ref):
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
     clipped = (ref[1] == s_lo).sum(), (ref[1] == s_hi).sum()
