@@ -30,7 +30,6 @@ ALLOWED: set[str] = {
     "polcam/pipeline.py:live_maps",
     "polcam/separation/wen21.py:separate_wen21",       # wen21 and its helpers (speed)
     "polcam/separation/_rpca.py:rpca_ialm",
-    "polcam/separation/_rpca.py:_ialm_direction",
     "polcam/bench/speed.py:run",
 }
 

@@ -59,7 +59,6 @@ SAME_LAYER: dict[tuple[str, str], str] = {
 #: Private names imported from another module that other tasks' files still hold (the lead
 #: empties this at merge; each is renamed in its owning module).  (importer, module, name).
 KNOWN_PRIVATE: dict[tuple[str, str, str], str] = {
-    ("polcam.separation.wen21", "polcam.separation._rpca", "_rpca_direction_t"): "speed: wen21 and its helpers",
 }
 
 #: Package-private modules imported from outside their package, still to be made public in the

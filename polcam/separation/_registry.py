@@ -443,7 +443,10 @@ def _run(arr: np.ndarray, resolved: ResolvedSeparation, clipping: dict[str, Any]
             f"method {method!r} returned a diffuse layer of shape {diffuse.shape}, "
             f"expected {reference.shape}"
         )
-    diffuse = np.clip(np.nan_to_num(diffuse, nan=0.0, posinf=0.0, neginf=0.0), 0.0, reference)
-    specular = reference - diffuse
+    from polcam.separation._kernels import finish_layers  # numba: imported on first use
+
+    # float32 clip(nan_to_num(diffuse, nan=0, posinf=0, neginf=0), 0, reference) and the rest
+    d32, s32 = finish_layers(np.ascontiguousarray(diffuse).reshape(-1),
+                             np.ascontiguousarray(reference, dtype=np.float64).reshape(-1))
     full_info = {"method": method, "seconds": seconds, **clipping, **dict(info)}
-    return Separation(diffuse.astype(np.float32), specular.astype(np.float32), full_info)
+    return Separation(d32.reshape(reference.shape), s32.reshape(reference.shape), full_info)

@@ -1,7 +1,7 @@
 """Robust PCA by inexact ALM with wen21's polarization priors (private; :mod:`polcam.separation.wen21`).
 
 :func:`rpca_ialm` is the general solver (bounds, a direction for the rows of
-``S``, a quadratic prior); :func:`_rpca_direction_t` is its direction-constrained
+``S``, a quadratic prior); :func:`rpca_direction_t` is its direction-constrained
 case on pixel-major (k, n) matrices, iterated block by block
 (:func:`_ialm_direction`), which wen21 runs per cluster.
 """
@@ -9,6 +9,7 @@ case on pixel-major (k, n) matrices, iterated block by block
 from __future__ import annotations
 
 from concurrent.futures import Executor
+from itertools import pairwise
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -147,14 +148,13 @@ def rpca_ialm(m: np.ndarray, *, lam: float | None = None,
     y = x / max(norm2, float(np.abs(x).max()) / lam)
     mu = 1.25 / norm2
     mu_max = mu * 1e7
-    if g is not None and flip and n2 <= 4:
+    if g is not None and flip and n2 == 3:
         low, s, it, converged = _ialm_direction(x, y, g, s_lo, s_hi, p, lam=float(lam), beta=beta,
                                                 mu=mu, mu_max=mu_max, rho=float(rho), tol=float(tol),
                                                 max_iter=int(max_iter), norm_f=norm_f)
         return RPCAResult(low.T * peak, s.T * peak, it, converged)
     s = np.zeros_like(x)
-    converged = False
-    it = 0
+    converged, it = False, 0
     for it in range(1, max_iter + 1):
         inv = 1.0 / mu
         yi = inv * y
@@ -189,12 +189,12 @@ def rpca_ialm(m: np.ndarray, *, lam: float | None = None,
     return RPCAResult(low * peak, s * peak, it, converged)
 
 
-def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, g: np.ndarray, *,
+def rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, g: np.ndarray, *,
                      lam: float, beta: float, tol: float, max_iter: int, rho: float = 1.5,
                      pool: Executor | None = None, parts: int = 1) -> tuple[np.ndarray, int, bool]:
     """``rpca_ialm(mt.T, lam=lam, lower=lower_t.T, upper=mt.T, direction=g, prior=prior_t.T,
     beta=beta, ...)``'s sparse part, transposed, for matrices given as C-contiguous (k, n)
-    with n > k: the same arithmetic without transposing copies (wen21's clusters).  ``pool``
+    with n > k = 3: the same arithmetic without transposing copies (wen21's clusters).  ``pool``
     and ``parts``: the iterations' blocks on threads (:func:`_ialm_direction`; same result).
 
     Returns
@@ -204,78 +204,76 @@ def _rpca_direction_t(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, 
     iterations : int
     converged : bool
     """
-    k, n = mt.shape
     peak = float(np.abs(mt).max()) if mt.size else 0.0
     if not peak > 0:
         return np.zeros_like(mt), 0, True
     beta = float(beta) * peak
-    x = mt / peak
+    from polcam.separation._kernels import scaled_bounds  # numba: imported on first use
+
+    x, p, s_lo, s_hi = scaled_bounds(mt, lower_t, prior_t, np.asarray(g, dtype=np.float64), peak)
     norm_f = float(np.linalg.norm(x))
-    p = prior_t / peak
-    gb = g[:, None]
-    # row scales: s g >= lower, s g <= upper (= m), s >= 0; per pixel over the k channels
-    t = x / gb
-    s_hi = np.maximum(np.minimum.reduce(t, axis=0), 0.0)
-    t = np.divide(lower_t / peak, gb, out=t)
-    s_lo = np.minimum(np.maximum(np.maximum.reduce(t, axis=0), 0.0), s_hi)
-    del t
     norm2 = float(np.sqrt(max(np.linalg.eigvalsh(x @ x.T)[-1], 0.0)))
     y = x / max(norm2, float(np.abs(x).max()) / lam)
     mu = 1.25 / norm2
     _, sp, it, converged = _ialm_direction(x, y, g, s_lo, s_hi, p, lam=float(lam), beta=beta, mu=mu,
                                            mu_max=mu * 1e7, rho=float(rho), tol=float(tol),
-                                           max_iter=int(max_iter), norm_f=norm_f, pool=pool, parts=parts)
+                                           max_iter=int(max_iter), norm_f=norm_f, pool=pool, parts=parts,
+                                           want_low=False)
     sp *= peak
     return sp, it, converged
 
 
-_IALM_BLOCK = 8192  # pixels per block of the fused iteration: its dozen (n2, block) arrays stay in cache
+_IALM_BLOCK = 8192  # pixels per block: a block's shares of the sums are kept apart (thread-independent)
 
 
 def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarray, s_hi: np.ndarray,
                     p: np.ndarray | None, *, lam: float, beta: float, mu: float, mu_max: float,
                     rho: float, tol: float, max_iter: int, norm_f: float,
-                    pool: Executor | None = None, parts: int = 1
+                    pool: Executor | None = None, parts: int = 1, want_low: bool = True
                     ) -> tuple[np.ndarray, np.ndarray, int, bool]:
-    """The iterations of :func:`rpca_ialm` with a direction, for a wide (n2, n) matrix of few rows.
+    """The iterations of :func:`rpca_ialm` with a direction, for a wide (3, n) matrix.
 
-    The same steps as the general loop, element by element, in one pass over
-    the pixels per iteration, block by block: the Gram matrix the next
-    singular value thresholding needs is accumulated in the pass that
-    updates ``S`` and ``Y``, and ``S`` is kept as its row scales ``sc``
-    (``S = g sc``).  ``y`` is updated in place.
+    The same steps as the general loop, element by element, in one compiled pass
+    over the pixels per iteration (:func:`polcam.separation._kernels.ialm_pass`): the Gram matrix the next
+    singular value thresholding needs is accumulated in the pass that updates
+    ``S`` and ``Y``, and ``S`` is kept as its row scales ``sc`` (``S = g sc``).
+    ``y`` is updated in place.
 
-    With a ``pool``, each iteration's blocks run as ``parts`` contiguous runs on it; every
-    block's share of the Gram matrix and of the residual is kept and the shares are summed in
-    block order, so the result is the same, bit for bit, for any ``pool`` and ``parts``.
+    The pixels run in blocks of ``_IALM_BLOCK``; with a ``pool``, each iteration's blocks run
+    as ``parts`` contiguous runs on it.  Every block's share of the Gram matrix and of the
+    residual is kept and the shares are summed in block order, so the result is the same,
+    bit for bit, for any ``pool`` and ``parts``.
 
     Returns
     -------
     low, sparse : numpy.ndarray
-        (n2, n) float64.
+        (3, n) float64 (``low`` (3, 0) unless ``want_low``).
     iterations : int
     converged : bool
     """
     k, n = x.shape
-    gb = g[:, None]
-    gg = float(g @ g)
-    gsum = float(g.sum())
-    sc = np.zeros(n)
-    low = np.empty_like(x)
-    blocks = [(a, min(a + _IALM_BLOCK, n)) for a in range(0, n, _IALM_BLOCK)]
-    parts = max(1, min(parts if pool is not None else 1, len(blocks)))
-    runs = [blocks[len(blocks) * i // parts:len(blocks) * (i + 1) // parts] for i in range(parts)]
-    width = min(_IALM_BLOCK, n)
-    bufs = [tuple(np.empty((k, width)) for _ in range(3)) for _ in runs]
+    if k != 3:
+        raise MethodError(f"_ialm_direction: matrix of shape {x.shape}: expected 3 rows")
+    x, y, g = (np.ascontiguousarray(a, dtype=np.float64) for a in (x, y, g))
+    s_lo, s_hi = (np.ascontiguousarray(a, dtype=np.float64) for a in (s_lo, s_hi))
+    from polcam.separation._kernels import ialm_pass  # numba: imported on first use
+
+    use_p = beta > 0 and p is not None
+    pp = np.ascontiguousarray(p, dtype=np.float64) if use_p else x
+    sc, low = np.zeros(n), np.empty((k, n if want_low else 0))
+    edges = np.arange(0, n + _IALM_BLOCK, _IALM_BLOCK, dtype=np.int64)
+    edges[-1] = n
+    nb = len(edges) - 1
+    parts = max(1, min(parts if pool is not None else 1, nb))
+    cuts = [nb * i // parts for i in range(parts + 1)]
+    grams, rrs = np.empty((nb, k, k)), np.empty(nb)
     # the Gram matrix of the first thresholding's argument x - S + Y / mu (S = 0)
-    inv = 1.0 / mu
     gram = np.zeros((k, k))
-    for a, b in blocks:
-        arg = inv * y[:, a:b]
-        arg = np.add(x[:, a:b], arg, out=arg)
+    for a, b in pairwise(edges):
+        arg = y[:, a:b] * (1.0 / mu)
+        arg += x[:, a:b]
         gram += arg @ arg.T
-    converged = False
-    it = 0
+    converged, it = False, 0
     for it in range(1, max_iter + 1):
         inv = 1.0 / mu
         w, v = np.linalg.eigh(gram)
@@ -283,60 +281,27 @@ def _ialm_direction(x: np.ndarray, y: np.ndarray, g: np.ndarray, s_lo: np.ndarra
         keep = sv > inv
         f = np.zeros_like(sv)
         f[keep] = (sv[keep] - inv) / sv[keep]
-        proj = (v * f) @ v.T
-        c1 = mu / (mu + beta) if beta > 0 else 1.0
-        c2 = beta / (mu + beta) if beta > 0 else 0.0
-        t = lam / (mu + beta)
+        proj = np.ascontiguousarray((v * f) @ v.T)
         mu_next = min(mu * rho, mu_max)
-        inv_next = 1.0 / mu_next
+        c1, c2 = (mu / (mu + beta), beta / (mu + beta)) if beta > 0 else (1.0, 0.0)
+        coef = np.array([inv, c1, c2, lam / (mu + beta), mu, 1.0 / mu_next, g.sum(), g @ g])
 
-        def run(r: int, inv: float = inv, proj: np.ndarray = proj, c1: float = c1, c2: float = c2,
-                t: float = t, mu: float = mu, inv_next: float = inv_next) -> list[tuple[np.ndarray, float]]:
-            buf_gs, buf_yi, buf_arg = bufs[r]
-            shares = []
-            for a, b in runs[r]:
-                xb, yb = x[:, a:b], y[:, a:b]
-                gs = np.multiply(gb, sc[None, a:b], out=buf_gs[:, :b - a])
-                yi = np.multiply(yb, inv, out=buf_yi[:, :b - a])
-                arg = np.subtract(xb, gs, out=buf_arg[:, :b - a])
-                arg += yi
-                lb = np.matmul(proj, arg, out=low[:, a:b])
-                d = np.subtract(xb, lb, out=arg)
-                vv = np.add(d, yi, out=yi)
-                if beta > 0:
-                    vv *= c1
-                    if p is not None:
-                        vv += np.multiply(p[:, a:b], c2, out=gs)
-                q = g @ vv
-                q -= t * gsum
-                q /= gg
-                np.maximum(q, s_lo[a:b], out=q)  # clip to [s_lo, s_hi] (s_lo <= s_hi)
-                sc[a:b] = np.minimum(q, s_hi[a:b], out=q)
-                gs = np.multiply(gb, sc[None, a:b], out=gs)
-                r_ = d
-                r_ -= gs
-                rr_b = float(np.einsum("ij,ij->", r_, r_))
-                r_ *= mu
-                yb += r_
-                # the next thresholding's argument x - S + Y / mu_next, and its Gram matrix
-                nxt = np.multiply(yb, inv_next, out=vv)
-                nxt += xb
-                nxt -= gs
-                shares.append((nxt @ nxt.T, rr_b))
-            return shares
+        def run(r: int, proj: np.ndarray = proj, coef: np.ndarray = coef) -> None:
+            a, b = cuts[r], cuts[r + 1]
+            ialm_pass(x, y, sc, low, g, s_lo, s_hi, pp, use_p, proj, edges[a:b + 1], coef,
+                       grams[a:b], rrs[a:b])
 
         if parts > 1:
             assert pool is not None
-            shares = [sh for part in pool.map(run, range(parts)) for sh in part]
+            list(pool.map(run, range(parts)))
         else:
-            shares = run(0)
-        gram = np.zeros((k, k))
-        rr = 0.0
-        for gram_b, rr_b in shares:  # in block order, whatever ran them
-            gram += gram_b
-            rr += rr_b
+            run(0)
+        gram, rr = np.zeros((k, k)), 0.0
+        for i in range(nb):  # in block order, whatever ran them
+            gram += grams[i]
+            rr += float(rrs[i])
         mu = mu_next
         if np.sqrt(rr) / norm_f < tol:
             converged = True
             break
-    return low, gb * sc[None, :], it, converged
+    return low, g[:, None] * sc[None, :], it, converged

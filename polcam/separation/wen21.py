@@ -44,9 +44,9 @@ import numpy as np
 
 from polcam.errors import MethodError
 from polcam.parallel import default_workers
-from polcam.polarimetry import Sinusoid, fit_sinusoid
+from polcam.polarimetry import Sinusoid, maps
 from polcam.separation._registry import register
-from polcam.separation._rpca import RPCAResult, _rpca_direction_t, rpca_ialm
+from polcam.separation._rpca import RPCAResult, rpca_direction_t, rpca_ialm
 
 __all__ = [
     "REFERENCE",
@@ -96,22 +96,13 @@ def polarization_chromaticity(ic: np.ndarray, isv: np.ndarray) -> np.ndarray:
             f"Ic of shape {ic.shape} and Isv of shape {isv.shape}: "
             "expected two equal (..., 3) arrays"
         )
-    raw_d = np.multiply(isv, 2.0)
-    np.subtract(ic, raw_d, out=raw_d)
-    np.maximum(raw_d, 0.0, out=raw_d)
     if not ic.size:
-        return raw_d
-    # channel by channel rather than reductions along the short last axis (same sums, faster)
-    c = np.maximum(ic, 0.0)
-    imin_bar = float(np.minimum(np.minimum(c[..., 0], c[..., 1]), c[..., 2]).mean())
-    den = np.add(raw_d[..., 0], raw_d[..., 1])
-    den += raw_d[..., 2]
-    den += imin_bar
-    ok = den > 0
-    if ok.all():
-        raw_d /= den[..., None]
-        return raw_d
-    return np.where(ok[..., None], raw_d / np.where(ok, den, 1.0)[..., None], 0.0)
+        return np.maximum(ic - 2.0 * isv, 0.0)
+    ic2, isv2 = (np.ascontiguousarray(a.reshape(-1, 3)) for a in (ic, isv))
+    from polcam.separation import _kernels  # numba: imported on first use
+
+    imin_bar = float(_kernels.min_rgb(ic2).mean())
+    return _kernels.chromaticity(ic2, isv2, imin_bar).reshape(ic.shape)
 
 
 def polarization_illuminant(isv: np.ndarray, *, floor: float = 0.05) -> np.ndarray:
@@ -136,7 +127,9 @@ def polarization_illuminant(isv: np.ndarray, *, floor: float = 0.05) -> np.ndarr
         (3,) float64 with mean 1; white ``(1, 1, 1)`` when there is no
         polarized light at all.
     """
-    total = np.asarray(isv, dtype=np.float64).reshape(-1, 3).sum(axis=0)
+    from polcam.separation import _kernels  # numba: imported on first use
+
+    total = _kernels.channel_sums(np.ascontiguousarray(np.reshape(isv, (-1, 3)), dtype=np.float64))
     if not total.sum() > 0:
         return np.ones(3)
     g = np.maximum(total / total.mean(), floor)
@@ -248,14 +241,19 @@ def _check_options(clusters: Any, seed: Any, lam_scale: Any, beta: Any, illumina
             )
 
 
-def _fit(arr: np.ndarray) -> Sinusoid:
-    """The float64 sinusoid fit of the stack with NaN as 0, +inf as 1 and negatives as 0."""
+def _fit(arr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Float64 ``Ic`` and ``Isv`` of the stack's sinusoid fit, with NaN as 0, +inf as 1 and negatives as 0.
+
+    The two maps of :func:`polcam.polarimetry.fit_sinusoid` (the phase is not needed).
+    """
     if arr.dtype in (np.float32, np.float64):
         lo, hi = (float(arr.min()), float(arr.max())) if arr.size else (0.0, 0.0)
         if lo >= 0.0 and np.isfinite(hi):  # clean (what separate passes): no copy of the stack
-            return fit_sinusoid(arr, dtype=np.float64)
+            m = maps(arr, ("ic", "isv"), dtype=np.float64)
+            return m["ic"], m["isv"]
     arr = np.clip(np.nan_to_num(arr.astype(np.float64), nan=0.0, posinf=1.0, neginf=0.0), 0.0, None)
-    return fit_sinusoid(arr)
+    m = maps(arr, ("ic", "isv"))
+    return m["ic"], m["isv"]
 
 
 @register("wen21", kind="stack", reference=REFERENCE)
@@ -318,21 +316,20 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
     _check_options(clusters, seed, lam_scale, beta, illuminant, tol, max_iter)
     _, h, w, _ = arr.shape
     if fit is None:
-        fit = _fit(arr)
+        ic0, isv0 = _fit(arr)
     elif not (np.shape(fit.ic) == np.shape(fit.isv) == (h, w, 3)):
         raise MethodError(f"wen21: fit of shapes {np.shape(fit.ic)}, {np.shape(fit.isv)}: expected "
                           f"Ic and Isv of the stack's ({h}, {w}, 3)")
-    fit = Sinusoid(np.asarray(fit.ic, dtype=np.float64), np.asarray(fit.isv, dtype=np.float64), fit.phi)
-    ic = np.maximum(fit.ic, 0.0).reshape(-1, 3)
-    isv = np.minimum(fit.isv, fit.ic)
-    isv = np.maximum(isv, 0.0, out=isv).reshape(-1, 3)
-    peak = float(ic.max()) if ic.size else 0.0
+    else:
+        ic0, isv0 = fit.ic, fit.isv
+    # Ic >= 0, 0 <= Isv <= Ic; the method is invariant to exposure: work on [0, 1]
+    from polcam.separation import _kernels  # numba: imported on first use
+
+    ic, isv, peak = _kernels.normalised(np.asarray(ic0, dtype=np.float64).reshape(-1, 3),
+                                        np.asarray(isv0, dtype=np.float64).reshape(-1, 3))
     if not peak > 0:  # all black: no light, no specular
         info0 = {"iterations": 0, "converged": True, "clusters": 0, "illuminant": [1.0, 1.0, 1.0]}
         return np.zeros((h, w, 3)), info0
-    # The method is invariant to exposure; work on [0, 1] whatever the input's level.
-    ic /= peak
-    isv /= peak
 
     if isinstance(illuminant, str):
         gamma = polarization_illuminant(isv) if illuminant == "polarization" else np.ones(3)
@@ -342,17 +339,14 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
 
     chro = polarization_chromaticity(ic, isv)
     labels, _ = kmeans(chro, int(clusters), rng=np.random.default_rng(int(seed)))
-    raw_s = np.minimum(2.0 * isv, ic)
     scale = float(ic.mean())
-    diffuse = np.empty_like(ic)
     iterations = 0
     converged = True
-    order = np.argsort(labels, kind="stable")
-    bounds = np.searchsorted(labels[order], np.arange(labels.max() + 2 if labels.size else 1))
+    order, bounds = _kernels.cluster_order(labels, int(labels.max()) + 1 if labels.size else 0)
 
     # pixels as columns, sorted by cluster: each cluster's matrices are contiguous column
     # ranges, gathered once for all
-    ic_t, isv_t, raw_t = (np.take(a.T, order, axis=1) for a in (ic, isv, raw_s))
+    ic_t, isv_t, raw_t = _kernels.gather_t(ic, isv, order)
     diffuse_t = np.empty_like(ic_t)
 
     def cluster(k: int, pool: ThreadPoolExecutor | None = None, parts: int = 1) -> tuple[int, bool]:
@@ -363,7 +357,7 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
         w = float(beta) * lam / scale
         if b - a > 3:  # a wide matrix: the transposed fast path of rpca_ialm
             m = ic_t[:, a:b]
-            sp, its, conv = _rpca_direction_t(m, isv_t[:, a:b], raw_t[:, a:b], gamma,
+            sp, its, conv = rpca_direction_t(m, isv_t[:, a:b], raw_t[:, a:b], gamma,
                                               lam=lam, beta=w, tol=float(tol), max_iter=int(max_iter),
                                               pool=pool, parts=parts)
             np.subtract(m, sp, out=diffuse_t[:, a:b])
@@ -388,12 +382,7 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
     for its, conv in results:
         iterations = max(iterations, its)
         converged = converged and conv
-    diffuse[order] = diffuse_t.T
-    top = np.subtract(ic, isv)
-    np.maximum(top, 0.0, out=top)
-    np.maximum(diffuse, 0.0, out=diffuse)  # clip to [0, max(Ic - Isv, 0)]
-    np.minimum(diffuse, top, out=diffuse)
-    diffuse *= peak
+    diffuse = _kernels.scatter_clipped(diffuse_t, order, ic, isv, peak)
     info = {
         "iterations": iterations,
         "converged": converged,
