@@ -16,7 +16,7 @@ import numpy as np
 
 from polcam.errors import MethodError
 
-__all__ = ["RPCAResult", "rpca_ialm"]
+__all__ = ["RPCAResult", "rpca_direction_t", "rpca_ialm"]
 
 
 def _svt(x: np.ndarray, tau: float) -> np.ndarray:
