@@ -438,12 +438,17 @@ def run_args(a: argparse.Namespace) -> int:
     names = sorted({r.device for r in rows if r.device})
     if names:
         print(f"device: {', '.join(names)}")
-    print(format_markdown(rows))
+    _report(a, format_markdown(rows), [asdict(r) for r in rows])
+    return 0
+
+
+def _report(a: argparse.Namespace, markdown: str, records: list[dict[str, Any]]) -> None:
+    """Print a table, and write its rows to ``--json`` when given."""
+    print(markdown)
     if a.json:
         with atomic_write(a.json, "w") as fh:
-            json.dump([asdict(r) for r in rows], fh, indent=1)
+            json.dump(records, fh, indent=1)
         print(f"wrote {a.json}")
-    return 0
 
 
 def _print_device(device: str) -> None:
@@ -457,11 +462,7 @@ def _run_targets(a: argparse.Namespace) -> int:
     print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
     rows = targets.run(repeat=a.repeat, scene=a.frame_scene)
     print(f"load average {_load():.2f}")
-    print(targets.format_markdown(rows))
-    if a.json:
-        with atomic_write(a.json, "w") as fh:
-            json.dump([dict(asdict(r), met=r.met) for r in rows], fh, indent=1)
-        print(f"wrote {a.json}")
+    _report(a, targets.format_markdown(rows), [dict(asdict(r), met=r.met) for r in rows])
     return 0
 
 
@@ -469,9 +470,5 @@ def _run_maps(a: argparse.Namespace) -> int:
     print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
     rows = maps.run(repeat=a.repeat, scene=a.frame_scene)
     print(f"load average {_load():.2f}")
-    print(maps.format_markdown(rows))
-    if a.json:
-        with atomic_write(a.json, "w") as fh:
-            json.dump([asdict(r) for r in rows], fh, indent=1)
-        print(f"wrote {a.json}")
+    _report(a, maps.format_markdown(rows), [asdict(r) for r in rows])
     return 0
