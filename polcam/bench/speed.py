@@ -40,7 +40,6 @@ before and after each case is recorded.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
@@ -48,25 +47,21 @@ import subprocess
 import sys
 import tempfile
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from polcam.bench import maps, targets
 from polcam.bench.quality import psnr
-from polcam.bench.targets import device_name
 from polcam.demosaicing import demosaic
-from polcam.errors import MethodError
-from polcam.io.atomic import atomic_write
 from polcam.parallel import start_workers
 from polcam.separation import method_spec, separate
 from polcam.separation.tensor import AUTO_UNTILED_PIXELS, warm_up
 from polcam.synth.render import mosaic, render
 from polcam.synth.scenes import scene
 
-__all__ = ["SpeedRow", "add_arguments", "format_markdown", "measure", "run", "run_args"]
+__all__ = ["SpeedRow", "format_markdown", "load_average", "measure", "run"]
 
 
 @dataclass
@@ -218,7 +213,8 @@ def measure(case: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _load() -> float:
+def load_average() -> float:
+    """The 1-minute load average (NaN where the system does not report one)."""
     try:
         return os.getloadavg()[0]
     except OSError:  # pragma: no cover - not on Linux
@@ -301,13 +297,13 @@ def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bun
         for n, (label, solver, case) in enumerate(cases):
             path = str(Path(tmp) / f"{n}.npy")
             case = {**case, "save": path}
-            before = _load()
+            before = load_average()
             try:
                 got = go(case)
             except (RuntimeError, MemoryError) as exc:   # report the case, go on with the others
                 rows.append(SpeedRow(case=label, solver=solver, height=0, width=0, seconds=float("nan"),
                                      iterations=0, converged=False, tiles=0, peak_mb=float("nan"),
-                                     load=(before, _load()), options=dict(case["options"]),
+                                     load=(before, load_average()), options=dict(case["options"]),
                                      error=str(exc).strip().splitlines()[-1][:200]))
                 if progress:
                     print(f"  {label} {solver}: failed: {rows[-1].error}", flush=True)
@@ -315,7 +311,7 @@ def run(*, sizes: Sequence[int] = (128, 256, 512), scenes: Sequence[str] = ("Bun
             row = SpeedRow(case=label, solver=solver, height=got["height"], width=got["width"],
                            seconds=got["seconds"], iterations=got["iterations"],
                            converged=got["converged"], tiles=got["tiles"], peak_mb=got["peak_mb"],
-                           psnr=got["psnr"], load=(before, _load()), options=dict(case["options"]),
+                           psnr=got["psnr"], load=(before, load_average()), options=dict(case["options"]),
                            timings=got["timings"], device=got.get("device", ""),
                            device_peak_mb=got.get("device_peak_mb", float("nan")))
             if solver == "exact":
@@ -362,113 +358,3 @@ def format_markdown(rows: Sequence[SpeedRow]) -> str:
             f"{_f(r.psnr_vs_exact, '.1f')} | {r.iterations} | {r.tiles} | {_peak(r)} | "
             f"{r.load[0]:.1f} / {r.load[1]:.1f} |")
     return "\n".join(lines)
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    """Add the options of ``polcam bench speed`` to a parser."""
-    p.add_argument("--sizes", type=int, nargs="*",
-                   help="sides of the synthetic scenes (128 256 512 when --method is given; none: the frame "
-                        "alone); without --sizes, --method and --maps: every speed target's figure")
-    p.add_argument("--scenes", nargs="+", default=["Bunny4"], help="synthetic scenes (default Bunny4)")
-    p.add_argument("--exact-max", type=int, default=256,
-                   help="largest side the exact solver runs at (default 256)")
-    p.add_argument("--no-frame", action="store_true", help="skip the full sensor frame")
-    p.add_argument("--full-resolution", action="store_true",
-                   help="also the full frame at full resolution (2448 x 2048 per angle)")
-    p.add_argument("--frame-scene", default="Bunny5", help="scene rendered for the sensor frame (default Bunny5)")
-    p.add_argument("--method",
-                   help="method timed (tensor: its exact and fast solvers, the default with --sizes; another "
-                        "method is timed alone, e.g. polarized-residual)")
-    p.add_argument("--device", help="PyTorch device for the tensor method's fast solver or polarized-residual "
-                                    "(default: numpy)")
-    p.add_argument("--tol", type=float, help="stopping tolerance of the fast solver")
-    p.add_argument("--workers", type=_positive_int, help="threads (default: CPU count)")
-    p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
-    p.add_argument("--json", type=Path, help="also write the rows to this file")
-    p.add_argument("--maps", action="store_true",
-                   help="instead: raw frame to S0, DoLP and AoLP, polanalyser's route and polcam's "
-                        "(bilinear, default demosaicing) on one 2448 x 2048 frame, mono and colour, "
-                        "as ratios (polcam.bench.maps)")
-    p.add_argument("--repeat", type=int, default=5,
-                   help="--maps and the targets' maps: best of this many runs (default 5)")
-
-
-def _positive_int(text: str) -> int:
-    """argparse type of ``--workers``: an integer of at least 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
-def run_args(a: argparse.Namespace) -> int:
-    """Run ``polcam bench speed`` with parsed options; print the table."""
-    targets = not getattr(a, "maps", False) and a.sizes is None and a.method is None and a.tol is None \
-        and a.workers is None and not a.no_frame and not a.full_resolution
-    if a.device and (targets or getattr(a, "maps", False)):
-        _print_device(a.device)
-    if getattr(a, "maps", False):
-        return _run_maps(a)
-    if targets:
-        return _run_targets(a)
-    a.sizes = [128, 256, 512] if a.sizes is None else a.sizes
-    a.method = a.method or "tensor"
-    options: dict[str, Any] = {}
-    if a.method != "tensor" and (a.tol is not None or a.workers is not None):
-        raise MethodError(f"bench speed: --tol and --workers are the tensor method's options, "
-                          f"not {a.method!r}'s")
-    if a.device and a.method != "tensor":
-        if "device" not in (method_spec(a.method).options or ()):
-            raise MethodError(f"bench speed: --device: method {a.method!r} has no PyTorch backend "
-                              "(tensor and polarized-residual have)")
-    if a.device:
-        _print_device(a.device)
-        options["device"] = a.device
-    if a.tol is not None:
-        options["tol"] = a.tol
-    if a.workers is not None:
-        options["workers"] = a.workers
-    print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
-    rows = run(sizes=a.sizes, scenes=a.scenes, exact_max=a.exact_max, frame=not a.no_frame,
-               full_resolution=a.full_resolution, frame_scene=a.frame_scene, options=options,
-               seed=a.seed, method=a.method)
-    names = sorted({r.device for r in rows if r.device})
-    if names:
-        print(f"device: {', '.join(names)}")
-    _report(a, format_markdown(rows), [asdict(r) for r in rows])
-    return 0
-
-
-def _report(a: argparse.Namespace, markdown: str, records: list[dict[str, Any]]) -> None:
-    """Print a table, and write its rows to ``--json`` when given."""
-    print(markdown)
-    if a.json:
-        with atomic_write(a.json, "w") as fh:
-            json.dump(records, fh, indent=1)
-        print(f"wrote {a.json}")
-
-
-def _print_device(device: str) -> None:
-    """Print the device's name (a GPU's model); MethodError when it is not available."""
-    print(f"device {device}: {device_name(device)}", flush=True)
-
-
-def _run_targets(a: argparse.Namespace) -> int:
-    if a.device:
-        print("the figures below run on the CPU: the maps and wen21 have no PyTorch backend")
-    print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
-    rows = targets.run(repeat=a.repeat, scene=a.frame_scene)
-    print(f"load average {_load():.2f}")
-    _report(a, targets.format_markdown(rows), [dict(asdict(r), met=r.met) for r in rows])
-    return 0
-
-
-def _run_maps(a: argparse.Namespace) -> int:
-    print(f"CPU count {os.cpu_count()}, load average {_load():.2f}")
-    rows = maps.run(repeat=a.repeat, scene=a.frame_scene)
-    print(f"load average {_load():.2f}")
-    _report(a, maps.format_markdown(rows), [asdict(r) for r in rows])
-    return 0

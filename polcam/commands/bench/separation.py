@@ -10,7 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from polcam._jsonable import jsonable
-from polcam.bench import default_rule, quality, real, relit, sihr, speed, stability
+from polcam.bench import default_rule, quality, real, relit, sihr, stability
+from polcam.commands.bench import speed
 from polcam.errors import FrameReadError, MethodError, PolcamError
 from polcam.io.atomic import atomic_write
 from polcam.synth.family import scene_name, split_seeds
