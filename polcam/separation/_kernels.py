@@ -40,7 +40,7 @@ def scaled_bounds(mt: np.ndarray, lower_t: np.ndarray, prior_t: np.ndarray, g: n
     return x, p, s_lo, s_hi
 
 
-@numba.njit(cache=True, nogil=True, fastmath=False)
+@numba.njit(cache=True, nogil=True, fastmath={"contract"}, error_model="numpy")
 def ialm_pass(x: np.ndarray, y: np.ndarray, sc: np.ndarray, low: np.ndarray, g: np.ndarray,
               s_lo: np.ndarray, s_hi: np.ndarray, p: np.ndarray, use_p: bool, proj: np.ndarray,
               bounds: np.ndarray, coef: np.ndarray, gram_out: np.ndarray,
@@ -59,21 +59,31 @@ def ialm_pass(x: np.ndarray, y: np.ndarray, sc: np.ndarray, low: np.ndarray, g: 
     when ``use_p``);
     block i's Gram matrix of ``next`` and its ``|r|^2``, summed over the columns in order,
     go to ``gram_out[i]`` and ``rr_out[i]``.
+
+    The arithmetic is that of the expressions above up to rounding: products and sums may be
+    fused (``fastmath={"contract"}``: one rounding for ``a * b + c``, where the CPU has FMA), and
+    the division by ``g.g`` is a product with its reciprocal.  Sums are never reordered, so the
+    result does not depend on the vector width or on how the blocks are spread over threads.
     """
-    inv, c1, c2, t, mu, inv_next, gsum, gg = (coef[0], coef[1], coef[2], coef[3], coef[4],
-                                              coef[5], coef[6], coef[7])
+    inv, c1, t, mu, inv_next, gsum, gg = coef[0], coef[1], coef[3], coef[4], coef[5], coef[6], coef[7]
+    c2 = coef[2] if use_p else 0.0
+    pr = p if use_p else x  # read, times 0, when there is no prior: one loop for both
     tg = t * gsum
+    igg = 1.0 / gg
     keep_low = low.shape[1] == x.shape[1]
     g0, g1, g2 = g[0], g[1], g[2]
     p00, p01, p02 = proj[0, 0], proj[0, 1], proj[0, 2]
     p10, p11, p12 = proj[1, 0], proj[1, 1], proj[1, 2]
     p20, p21, p22 = proj[2, 0], proj[2, 1], proj[2, 2]
+    x0r, x1r, x2r = x[0], x[1], x[2]
+    y0r, y1r, y2r = y[0], y[1], y[2]
+    q0r, q1r, q2r = pr[0], pr[1], pr[2]
     for blk in range(bounds.shape[0] - 1):
         s00 = s10 = s11 = s20 = s21 = s22 = rs = 0.0
         for j in range(bounds[blk], bounds[blk + 1]):
-            x0, x1, x2 = x[0, j], x[1, j], x[2, j]
+            x0, x1, x2 = x0r[j], x1r[j], x2r[j]
             s0 = sc[j]
-            yi0, yi1, yi2 = y[0, j] * inv, y[1, j] * inv, y[2, j] * inv
+            yi0, yi1, yi2 = y0r[j] * inv, y1r[j] * inv, y2r[j] * inv
             a0, a1, a2 = (x0 - g0 * s0) + yi0, (x1 - g1 * s0) + yi1, (x2 - g2 * s0) + yi2
             l0 = p00 * a0 + p01 * a1 + p02 * a2
             l1 = p10 * a0 + p11 * a1 + p12 * a2
@@ -81,15 +91,17 @@ def ialm_pass(x: np.ndarray, y: np.ndarray, sc: np.ndarray, low: np.ndarray, g: 
             if keep_low:
                 low[0, j], low[1, j], low[2, j] = l0, l1, l2
             d0, d1, d2 = x0 - l0, x1 - l1, x2 - l2
-            v0, v1, v2 = (d0 + yi0) * c1, (d1 + yi1) * c1, (d2 + yi2) * c1
-            if use_p:
-                v0, v1, v2 = v0 + p[0, j] * c2, v1 + p[1, j] * c2, v2 + p[2, j] * c2
-            q = ((g0 * v0 + g1 * v1 + g2 * v2) - tg) / gg
-            q = min(max(q, s_lo[j]), s_hi[j])  # s_lo <= s_hi
+            v0 = (d0 + yi0) * c1 + q0r[j] * c2
+            v1 = (d1 + yi1) * c1 + q1r[j] * c2
+            v2 = (d2 + yi2) * c1 + q2r[j] * c2
+            q = ((g0 * v0 + g1 * v1 + g2 * v2) - tg) * igg
+            lo, hi = s_lo[j], s_hi[j]  # lo <= hi
+            q = lo if q < lo else q
+            q = hi if q > hi else q
             sc[j] = q
             r0, r1, r2 = d0 - g0 * q, d1 - g1 * q, d2 - g2 * q
-            y0, y1, y2 = y[0, j] + r0 * mu, y[1, j] + r1 * mu, y[2, j] + r2 * mu
-            y[0, j], y[1, j], y[2, j] = y0, y1, y2
+            y0, y1, y2 = y0r[j] + r0 * mu, y1r[j] + r1 * mu, y2r[j] + r2 * mu
+            y0r[j], y1r[j], y2r[j] = y0, y1, y2
             n0 = (y0 * inv_next + x0) - g0 * q
             n1 = (y1 * inv_next + x1) - g1 * q
             n2 = (y2 * inv_next + x2) - g2 * q

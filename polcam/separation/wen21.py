@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from polcam.errors import MethodError
-from polcam.parallel import default_workers
+from polcam.parallel import blas_limit, default_workers
 from polcam.polarimetry import Sinusoid, maps
 from polcam.separation._registry import register
 from polcam.separation._rpca import RPCAResult, rpca_direction_t, rpca_ialm
@@ -314,6 +314,17 @@ def separate_wen21(stack: np.ndarray, *, clusters: int = 8, seed: int = 0,
             "stack (angles 0, 45, 90, 135 degrees)"
         )
     _check_options(clusters, seed, lam_scale, beta, illuminant, tol, max_iter)
+    # BLAS on one thread: its calls here are small (k-means scores, 3 x 3 Gram matrices), and
+    # OpenBLAS' idle threads spin on the cores the cluster threads need (2 cores: 0.75 CPU-s
+    # against 1.2 with BLAS threads; docs/benchmarks.md)
+    with blas_limit(1):
+        return _separate(arr, clusters, seed, lam_scale, beta, illuminant, tol, max_iter, fit)
+
+
+def _separate(arr: np.ndarray, clusters: int, seed: int, lam_scale: float, beta: float,
+              illuminant: str | tuple[float, float, float], tol: float, max_iter: int,
+              fit: Sinusoid | None) -> tuple[np.ndarray, dict[str, Any]]:
+    """:func:`separate_wen21` on a checked stack with checked options."""
     _, h, w, _ = arr.shape
     if fit is None:
         ic0, isv0 = _fit(arr)
