@@ -297,17 +297,20 @@ class LiveMaps:
         return (arr.astype(np.float32) * np.float32(self.scale)).astype(np.float32)
 
 
-def _angle_planes(mosaic: np.ndarray, layout: Layout) -> list[np.ndarray]:
-    """The four (H/2, W/2) angle planes of a mosaic, in the order 0, 45, 90, 135."""
-    h, w = mosaic.shape
-    v = np.ascontiguousarray(mosaic).reshape(h // 2, 2, w // 2, 2)
+def _cell_stokes(mosaic: np.ndarray, layout: Layout, black: float, *, blurred: bool = False
+                 ) -> tuple[np.ndarray, ...]:
+    """(S0 above black, S1, S2) float32 (H/2, W/2) of every polarizer cell of a mosaic, in one pass
+    (:func:`polcam._cell_kernels.cell_stokes`); with ``blurred`` also the three under the 3 x 3
+    binomial filter (:func:`polcam._cell_kernels.binomial3`), six arrays in all."""
+    from polcam import _cell_kernels  # numba: imported on first use
+
     cell = layout.angle_index(2, 2)
-    planes: list[np.ndarray] = [np.empty(0)] * 4
+    rows, cols = np.empty(4, dtype=np.int64), np.empty(4, dtype=np.int64)
     for r in range(2):
-        left, right = cv2.split(v[:, r])  # rows of the cell: one OpenCV pass splits the columns
-        planes[int(cell[r, 0])] = left
-        planes[int(cell[r, 1])] = right
-    return planes
+        for c in range(2):
+            rows[int(cell[r, c])], cols[int(cell[r, c])] = r, c
+    s = _cell_kernels.cell_stokes(np.ascontiguousarray(mosaic), rows, cols, float(np.float32(-2.0 * black)))
+    return (*s, *(_cell_kernels.binomial3(a) for a in s)) if blurred else s
 
 
 def _scale(a: np.ndarray, factor: float, offset: float = 0.0, dtype: int = cv2.CV_32F) -> np.ndarray:
@@ -386,12 +389,8 @@ def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
     span = white - black
     if span <= 0:
         raise LayoutError(f"white level {white} is not above black level {black}")
-    i0, i45, i90, i135 = _angle_planes(mosaic, layout)
-    f32 = cv2.CV_32F
-    total = cv2.add(cv2.add(i0, i90, dtype=f32), cv2.add(i45, i135, dtype=f32))  # 2 S0 in counts
-    s1 = cv2.subtract(i0, i90, dtype=f32)
-    s2 = cv2.subtract(i45, i135, dtype=f32)
-    s0c = _scale(total, 0.5, -2.0 * black)  # S0 above black, counts
+    # S0 above black, S1, S2 (counts); colour: also their luminance-weighted values (R + 2G + B) / 4
+    s0c, s1, s2, *lum = _cell_stokes(mosaic, layout, black, blurred=layout.is_color)
     if not layout.is_color:
         mag, dolp, aolp = _orientation(s0c, s1, s2)
         ic = _scale(s0c, 0.5 / span)
@@ -405,6 +404,5 @@ def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
     ic = cv2.cvtColor(_scale(s0c, to8, 0.0, cv2.CV_8U), code)
     diffuse = cv2.cvtColor(_scale(diffuse_c, to8, 0.0, cv2.CV_8U), code)
     specular = cv2.subtract(ic, diffuse)
-    lum = [cv2.GaussianBlur(a, (3, 3), 0, borderType=cv2.BORDER_REFLECT_101) for a in (s0c, s1, s2)]
     _, dolp, aolp = _orientation(*lum)
     return LiveMaps(ic=ic, dolp=dolp, aolp=aolp, diffuse=diffuse, specular=specular, scale=1.0 / 255.0)

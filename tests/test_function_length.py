@@ -27,8 +27,6 @@ ALLOWED: set[str] = {
     "polcam/io/packing.py:unpack",
     "polcam/io/sidecar.py:validate_metadata",
     "polcam/commands/process.py:_run",
-    "polcam/pipeline.py:live_maps",
-    "polcam/separation/wen21.py:separate_wen21",       # wen21 and its helpers (speed)
     "polcam/separation/_rpca.py:rpca_ialm",
     "polcam/bench/speed.py:run",
 }

@@ -73,6 +73,7 @@ LAZY_BUDGET: dict[str, int] = {
     "polcam.sinks": 1,                              # RerunSink on first use (polcam.sinks.__getattr__)
     # polcam.separation._kernels imports numba (0.25 s): loaded where a compiled loop first runs
     "polcam.separation._registry": 1,
+    "polcam.pipeline": 1,                           # the live maps' loops (polcam._cell_kernels)
     "polcam.separation._rpca": 2,
     "polcam.separation.wen21": 3,
 }
