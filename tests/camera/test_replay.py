@@ -59,6 +59,65 @@ def test_raw_dumps_carry_their_bytes(tmp_path):
         assert f.metadata["pixel_format"] == "Mono12p"
 
 
+
+
+def _triggered(cam):
+    cam.trigger()
+    frame = cam.read(timeout=5.0)
+    assert frame is not None
+    return frame
+
+
+def test_a_loop_plays_the_first_pass_again_from_memory(tmp_path):
+    # once read, a looping replay does not decode the files again: a file changed on disk after
+    # the first pass is still played as it was then, with its bytes, and the frames are read-only
+    folder, mosaics = _folder(tmp_path, n=2, ext=".raw", pixel_format="Mono12p")
+    files = sorted(folder.glob("*.raw"))
+    original = [f.read_bytes() for f in files]
+    with ReplayCamera(folder, loop=True) as cam:
+        cam.configure(trigger="software")  # one file read per trigger: none read ahead
+        cam.start()
+        first = [_triggered(cam) for _ in range(2)]
+        for f in files:
+            f.write_bytes(bytes(len(original[0])))  # all zeros now
+        later = [_triggered(cam) for _ in range(4)]
+        cam.stop()
+    for i, f in enumerate(first + later):
+        np.testing.assert_array_equal(f.mosaic, mosaics[i % 2])
+        assert f.payload == original[i % 2]
+        assert not f.mosaic.flags.writeable
+    assert [f.metadata["frame_id"] for f in first + later] == list(range(6))
+
+
+def test_a_loop_over_the_memory_budget_reads_the_rest_again(tmp_path, monkeypatch):
+    import polcam.camera.replay as replay
+
+    folder, mosaics = _folder(tmp_path, n=3)
+    monkeypatch.setattr(replay, "LOOP_CACHE_BYTES", mosaics[0].nbytes)  # room for the first file only
+    with ReplayCamera(folder, loop=True) as cam:
+        cam.configure(trigger="software")
+        cam.start()
+        first = [_triggered(cam) for _ in range(3)]
+        for f in sorted(folder.glob("*.npy"))[1:]:
+            np.save(f, np.zeros_like(mosaics[0]))
+        later = [_triggered(cam) for _ in range(3)]
+        cam.stop()
+    for f, m in zip(first, mosaics):
+        np.testing.assert_array_equal(f.mosaic, m)
+    np.testing.assert_array_equal(later[0].mosaic, mosaics[0])  # kept
+    assert not later[1].mosaic.any() and not later[2].mosaic.any()  # read again: the new contents
+    assert later[1].mosaic.flags.writeable
+
+
+def test_a_single_pass_keeps_nothing(tmp_path):
+    folder, _ = _folder(tmp_path, n=2)
+    with ReplayCamera(folder) as cam:
+        cam.start()
+        frames = list(cam.frames(timeout=1.0))
+        assert cam._kept == {}
+    assert all(f.mosaic.flags.writeable for f in frames)
+
+
 def test_paced_replay_drops_frames_a_slow_consumer_misses(tmp_path):
     folder, _ = _folder(tmp_path, n=12)
     with ReplayCamera(folder, frame_rate=200.0, queue_frames=1) as cam:
