@@ -18,7 +18,7 @@ from polcam import DEMOSAIC_METHODS
 from polcam._version import __version__
 from polcam.commands import bench, calibrate, capture, demo, devices, formats, process, render, stokes, view
 from polcam.commands._args import CommandParser, parse_option, run_command
-from polcam.parallel import commands_own_main
+from polcam.parallel import commands_own_main, hold_freed_memory
 
 __all__ = ["build_parser", "main", "parse_option", "reference_markdown", "run_command"]
 
@@ -92,9 +92,11 @@ def reference_markdown(page: str = "cli") -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``polcam`` and ``python -m polcam``.
 
-    The command owns ``__main__``, so the library's parallel work may run in
+    The command owns ``__main__`` (and the process: its freed memory is kept for reuse,
+    :func:`polcam.parallel.hold_freed_memory`), so the library's parallel work may run in
     worker processes (:func:`polcam.parallel.commands_own_main`).
     """
+    hold_freed_memory()  # the command owns the process: freed frames' memory is reused, not unmapped
     with commands_own_main():
         return run_command(build_parser().parse_args(argv))
 
