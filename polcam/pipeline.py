@@ -331,9 +331,10 @@ def live_maps(mosaic: np.ndarray, layout: Layout, *, black_level: float = 0.0,
               white_level: float | None = None) -> LiveMaps:
     """Ic, DoLP, AoLP and the Imin layers of a raw mosaic at the polarizer-cell resolution.
 
-    Computed in a few OpenCV passes over the four angle planes (each 2x2
-    polarizer cell gives one sample per angle), without building a float
-    stack.
+    Each 2x2 polarizer cell gives one sample per angle: one compiled pass
+    over the mosaic sums them into S0, S1 and S2 (:mod:`polcam._cell_kernels`),
+    then a few OpenCV passes and the fused DoLP/AoLP kernel make the maps,
+    without building a float stack.
 
     Mono sensors: exactly ``polcam.polarimetry`` (``stokes``, ``dolp``, ``aolp``,
     ``imin``) of ``polcam.demosaic(..., resolution="cell")`` up to float32

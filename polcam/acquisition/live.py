@@ -42,10 +42,10 @@ __all__ = ["MAPS_FPS_WITH_LAYERS", "Counters", "LiveProcessor"]
 SEPARATION_NICENESS = 10
 
 #: With a separation on its own thread (any method but ``imin``), the maps start at most this many
-#: frames a second.  The maps of a 5 MP colour frame take about 55 ms of CPU (``live_maps``), so a
-#: camera or a replay faster than this would otherwise keep both cores of a 2-core machine on the
-#: maps and leave the lower-priority separation next to nothing (layers at 0.1-0.25 fps from a
-#: replay at 30 fps); 25 keeps the maps above their 20 fps target.
+#: frames a second.  The maps of a 5 MP colour frame and their logging take about 35 ms of CPU
+#: (``live_maps`` and the sink), so a camera or a replay faster than this would otherwise keep
+#: the cores of a 2-core machine on the maps and leave the lower-priority separation little;
+#: 25 keeps the maps above their 20 fps target (docs/benchmarks.md, "Live rates").
 MAPS_FPS_WITH_LAYERS = 25.0
 
 #: Seconds over which the live rates plotted at ``/stats/maps_fps`` and ``/stats/layers_fps`` are counted.
