@@ -28,7 +28,7 @@ __all__ = ["METHOD_PEAK_MB", "auto_workers", "available_mb", "peak_rss_mb", "res
 #: cell resolution, per method, as measured (docs/benchmarks.md, "Speed: maps and separation");
 #: methods not listed use :data:`_OTHER_PEAK_MB`.
 METHOD_PEAK_MB: dict[str, float] = {
-    "imin": 562.0, "wen21": 929.0, "yang10": 971.0, "polarized-residual": 1355.0,
+    "imin": 550.0, "wen21": 849.0, "yang10": 971.0, "polarized-residual": 1355.0,
     "tensor": 1276.0, "tensor-tau": 1276.0, "tensor-plain": 1276.0,
 }
 _OTHER_PEAK_MB = 1400.0
