@@ -151,7 +151,10 @@ def hold_freed_memory() -> bool:
     the system, and all threads share one arena (a thread's own arena holds at
     most 64 MiB, so the 30-60 MB arrays of a separation thread would be mapped
     afresh every time).  The process's resident memory then stays at its peak
-    instead of falling between frames; the peak itself does not change.
+    instead of falling between frames, and the peak can be higher by what
+    fragmentation leaves unused (one freed 100 MB array held beside the next
+    in the test; a ``polcam process`` worker's ``wen21`` peak fell instead,
+    906 MB -> 874 MB).
 
     polcam's commands and their worker processes call it (they own the process);
     a program that runs many frames through the library can call it too.
