@@ -36,8 +36,9 @@ from polcam.sinks.rerun import dolp_ids, palettes
 from polcam.synth.patterns import stack_from_stokes
 from polcam.synth.render import mosaic
 
-__all__ = ["PLANTED", "BrowserUnavailable", "Page", "Served", "colour_fraction", "doc_screenshots",
-           "find_chromium", "open_page", "planted_scene", "serve", "shows_planted", "viewer_screenshot"]
+__all__ = ["PLANTED", "BrowserUnavailable", "Page", "Served", "child_pids", "colour_fraction", "doc_screenshots",
+           "find_chromium", "open_page", "planted_scene", "process_gone", "serve", "shows_planted",
+           "viewer_screenshot"]
 
 _NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
@@ -315,7 +316,7 @@ class Served:
             self.stop()
             raise RuntimeError(f"polcam {' '.join(args)} printed no URL: {''.join(seen)[-2000:]}")
         self.url: str = url
-        self.server_pids = _children(self.proc.pid)
+        self.server_pids = child_pids(self.proc.pid)
 
     def stop(self, sig: int = signal.SIGINT, timeout: float = 30.0) -> int:
         """Send ``sig``, wait for the command, close its pipes; returns its exit status."""
@@ -348,7 +349,8 @@ def serve(args: list[str], *, stream: str = "stdout", timeout: float = 60.0,
     return Served(args, stream=stream, timeout=timeout, env=env)
 
 
-def _children(pid: int) -> list[int]:
+def child_pids(pid: int) -> list[int]:
+    """The process ids whose parent is ``pid`` (Linux ``/proc``; empty elsewhere)."""
     kids = []
     for d in os.listdir("/proc"):
         if d.isdigit():
@@ -358,6 +360,26 @@ def _children(pid: int) -> list[int]:
             except (OSError, IndexError, ValueError):
                 pass
     return kids
+
+
+def process_gone(pid: int, timeout: float = 10.0) -> bool:
+    """Whether process ``pid`` has ended, waiting up to ``timeout`` seconds for it (Linux ``/proc``).
+
+    Gone: no ``/proc/PID`` any more, or a zombie (``Z``) with no thread left.  A multi-threaded
+    process whose main thread has exited also shows ``Z`` while its other threads still run (a
+    server shutting down still accepts connections), so ``Z`` alone is not enough.
+    """
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+            if state == "Z" and len(os.listdir(f"/proc/{pid}/task")) <= 1:
+                return True
+        except OSError:
+            return True
+        if time.monotonic() >= end:
+            return False
+        time.sleep(0.1)
 
 
 def _drawn(shot: np.ndarray) -> bool:

@@ -15,6 +15,7 @@ from polcam._browser import (
     colour_fraction,
     open_page,
     planted_scene,
+    process_gone,
     serve,
     shows_planted,
     viewer_screenshot,
@@ -36,13 +37,6 @@ def browser() -> None:
 
 def _env() -> dict[str, str]:
     return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-
-
-def _gone(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
-    except OSError:
-        return True
 
 
 def test_colour_fraction_and_planted_colours():
@@ -95,7 +89,7 @@ def test_view_web_shows_a_processed_folder(browser, tmp_path):
         assert served.url.startswith("http://127.0.0.1:") and served.server_pids
         shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60, width=1200, height=700)
         _check(shot, ok, colours, tmp_path / "view.png")
-    assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
+    assert served.returncode == 0 and all(process_gone(p) for p in served.server_pids)
 
 
 @pytest.mark.browser
@@ -109,7 +103,7 @@ def test_capture_serve_shows_the_live_frames_to_a_late_viewer(browser, tmp_path)
         shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60, width=1200, height=700)
         _check(shot, ok, colours, tmp_path / "capture.png")
         assert served.proc.poll() is None  # still capturing: this was the live view
-    assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
+    assert served.returncode == 0 and all(process_gone(p) for p in served.server_pids)
 
 
 def _other_address() -> str | None:
@@ -149,7 +143,7 @@ def test_view_web_shows_an_rrd_recording_to_another_machine(browser, tmp_path):
         url = served.url.replace(host, addr) if addr else served.url.replace(host, "127.0.0.1")
         shot, ok = viewer_screenshot(url, accept=lambda s: shows_planted(s, colours), timeout=60, width=1200, height=700)
         _check(shot, ok, colours, tmp_path / "rrd.png")
-    assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
+    assert served.returncode == 0 and all(process_gone(p) for p in served.server_pids)
 
 
 @pytest.mark.browser
@@ -167,4 +161,4 @@ def test_view_web_shows_a_demo_output_folder(browser, tmp_path):
         assert served.url.startswith("http://127.0.0.1:") and served.server_pids
         shot, ok = viewer_screenshot(served.url, accept=lambda s: shows_planted(s, colours), timeout=60, width=1200, height=700)
         _check(shot, ok, colours, tmp_path / "demo.png")
-    assert served.returncode == 0 and all(_gone(p) for p in served.server_pids)
+    assert served.returncode == 0 and all(process_gone(p) for p in served.server_pids)

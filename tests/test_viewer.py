@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from polcam._browser import child_pids, process_gone
 from polcam.cli import main
 from polcam.errors import FrameReadError, PolcamError
 from polcam.sinks.rerun import ENTITIES, RerunSink
@@ -108,39 +109,6 @@ def test_a_raw_folder_is_processed_with_the_defaults(tmp_path):
         np.testing.assert_array_equal(a[ENTITIES[role]][0], b[ENTITIES[role]][0], err_msg=role)
 
 
-def _children(pid: int) -> list[int]:
-    kids = []
-    for d in os.listdir("/proc"):
-        if not d.isdigit():
-            continue
-        try:
-            stat = Path(f"/proc/{d}/stat").read_text()
-        except OSError:
-            continue
-        if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-            kids.append(int(d))
-    return kids
-
-
-def _gone(pid: int, timeout: float = 10.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        try:
-            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            return True
-        if state == "Z":
-            # the thread-group leader has exited; a process whose other threads still run (a server
-            # shutting down) shows "Z" too, so it is gone only when no other task is left
-            try:
-                if len(os.listdir(f"/proc/{pid}/task")) <= 1:
-                    return True
-            except OSError:
-                return True
-        time.sleep(0.1)
-    return False
-
-
 def _start_view(target: Path, *extra: str) -> tuple[subprocess.Popen[str], str]:
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.Popen([sys.executable, "-m", "polcam.cli", "view", str(target), "--web", "--port", "0",
@@ -168,13 +136,13 @@ def test_the_server_stops_with_the_command(processed, sig):
     try:
         port = int(re.search(r"127\.0\.0\.1:(\d+)/", url).group(1))
         socket.create_connection(("127.0.0.1", port), timeout=5).close()
-        kids = _children(proc.pid)
+        kids = child_pids(proc.pid)
         assert kids, "the web viewer runs as a child process"
         proc.send_signal(sig)
         proc.wait(30)
         assert proc.returncode == (0 if sig != signal.SIGKILL else -signal.SIGKILL)
         for k in kids:  # no orphan: SIGINT/SIGTERM stop it, a killed parent takes it along (PDEATHSIG)
-            assert _gone(k), f"server process {k} outlived polcam view ({sig.name})"
+            assert process_gone(k), f"server process {k} outlived polcam view ({sig.name})"
         # the port stops accepting; polled, as the kernel closes the listening socket after the exit
         deadline = time.monotonic() + 10
         while True:
@@ -255,7 +223,7 @@ def _run_view(*args: str, cwd: Path | None = None, timeout: float = 60) -> subpr
 
 def _zombies_of(pid: int) -> list[int]:
     out = []
-    for k in _children(pid):
+    for k in child_pids(pid):
         try:
             if Path(f"/proc/{k}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z":
                 out.append(k)
@@ -295,7 +263,7 @@ def test_a_port_another_server_holds_is_refused(processed, which):
         assert r.returncode == 2, (r.stdout, r.stderr)
         assert f"port {taken} is in use: something is already listening on 127.0.0.1:{taken}" in r.stderr
         assert "open http" not in r.stdout and "logged" not in r.stdout
-        assert other.pid is not None and _gone(other.pid, timeout=0.5) is False  # the other server untouched
+        assert other.pid is not None and process_gone(other.pid, timeout=0.5) is False  # the other server untouched
 
 
 def test_a_server_that_answers_on_our_port_is_never_taken_for_ours(monkeypatch):
