@@ -10,7 +10,7 @@ from typing import Any
 from polcam import _imageops
 from polcam._xp import namespace
 
-__all__ = ["radial_share"]
+__all__ = ["diffuse_like_share", "radial_share"]
 
 
 def radial_share(q: Any, u: Any, lum: Any, *, smooth: int) -> Any:
@@ -48,6 +48,57 @@ def radial_share(q: Any, u: Any, lum: Any, *, smooth: int) -> Any:
     (H, W, C) float32 in [0, 1], of the same kind as ``q``.
     """
     xp = namespace(q)
+    c2, s2, coh = _edge_axis(lum, smooth)
+    par = q * c2[..., None] + u * s2[..., None]
+    amp = xp.hypot(q, u)
+    share = xp.clip(par / xp.maximum(amp, 1e-12), 0.0, 1.0) * xp.clip(coh, 0.0, 1.0)[..., None]
+    return xp.astype(share, xp.float32)
+
+
+def diffuse_like_share(q: Any, u: Any, lum: Any, *, smooth: int) -> float:
+    """Share of the image's edge-coherent polarization that lies along the edge normals: the diffuse-like part.
+
+    Diffuse polarization runs along the normal's azimuth (the gradient's axis at a contour),
+    specular polarization across it (:func:`radial_share`).  Over the image, the polarized
+    amplitude projected on each pixel's gradient axis, weighted by the axis' coherence,
+
+        P = coh (q cos 2 psi + u sin 2 psi),   w = sum max(P, 0) / (sum max(P, 0) + sum max(-P, 0))
+
+    weighs the evidence for the two: ``w`` near 1 where the polarization follows the edges
+    (polarized diffuse light at contours), near 0 where it crosses them (highlights), 0.5 with no
+    preference.  ``polarized-residual`` gives the diffuse polarization back in that proportion
+    (docs/methods/polarized-residual.md, "Diffuse-like share").  No constant is set: the two
+    sides are weighed as measured.
+
+    Parameters
+    ----------
+    q, u
+        (H, W) float32 Stokes components of the polarized light (for colour: each channel over the
+        illuminant, summed), smoothed over the coherent kernel (numpy or torch).
+    lum
+        (H, W) float32 intensity.
+    smooth
+        Odd side of the Gaussian window of the structure tensor.
+
+    Returns
+    -------
+    float in [0, 1]; 1.0 when no polarization lies on a coherent edge axis.
+    """
+    xp = namespace(q)
+    c2, s2, coh = _edge_axis(lum, smooth)
+    par = (q * c2 + u * s2) * xp.clip(coh, 0.0, 1.0)
+    along = float(xp.maximum(par, 0.0).sum())
+    across = float(xp.maximum(-par, 0.0).sum())
+    return along / (along + across) if along + across > 0 else 1.0
+
+
+def _edge_axis(lum: Any, smooth: int) -> tuple[Any, Any, Any]:
+    """The gradient's doubled-angle axis ``(cos 2 psi, sin 2 psi)`` and its coherence, each (H, W).
+
+    The structure tensor of ``lum`` (Sobel gradients, products Gaussian-smoothed over ``smooth``
+    pixels); AoLP convention as in :func:`radial_share`.
+    """
+    xp = namespace(lum)
     gx = _imageops.sobel(lum, 1, 0)
     gy = _imageops.sobel(lum, 0, 1)
     jxx = _imageops.gaussian(gx * gx, smooth)
@@ -58,9 +109,6 @@ def radial_share(q: Any, u: Any, lum: Any, *, smooth: int) -> Any:
     n = xp.hypot(c, s)
     coh = n / xp.maximum(jxx + jyy, 1e-20)
     safe = n > 0
-    c2 = xp.where(safe, c / xp.where(safe, n, 1.0), 0.0)[..., None]
-    s2 = xp.where(safe, s / xp.where(safe, n, 1.0), 0.0)[..., None]
-    par = q * c2 + u * s2
-    amp = xp.hypot(q, u)
-    share = xp.clip(par / xp.maximum(amp, 1e-12), 0.0, 1.0) * xp.clip(coh, 0.0, 1.0)[..., None]
-    return xp.astype(share, xp.float32)
+    c2 = xp.where(safe, c / xp.where(safe, n, 1.0), 0.0)
+    s2 = xp.where(safe, s / xp.where(safe, n, 1.0), 0.0)
+    return c2, s2, coh

@@ -43,7 +43,7 @@ from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.separation._clipping import declipped, fill_clipped_highlights
-from polcam.separation._diffuse_polarization import radial_share
+from polcam.separation._diffuse_polarization import diffuse_like_share, radial_share
 from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import peak_excess
 from polcam.separation._illuminant import SATURATED, check_efficiency, estimate_illuminant
@@ -265,17 +265,20 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
         ratio, ratio_source = extra["ratio"], extra["ratio_source"]
     else:
         # where coherent polarized light marks a highlight (the clipped regions' fill asks it)
-        floor, _, _, spec = highlight_mask(v["a_coh"], lum, v["k_small"], g, float(opts["polarized_threshold"]))
+        floor, _, gate, spec = highlight_mask(v["a_coh"], lum, v["k_small"], g, float(opts["polarized_threshold"]))
         diffuse = imin
         ratio, ratio_source = 0.0, "none"
         if keep is not None:
             keep["imin"] = xp.astype(imin, xp.float32)
+    # how much of the edge-coherent polarization follows the edges (diffuse-like) rather than
+    # crossing them (specular-like): steps 3 and 4 keep diffuse polarization in that proportion
+    share = diffuse_like_share(v["qq"], v["uu"], lum, smooth=_odd(2 * v["k_small"] + 1))
     if opts["edge_polarization"]:
-        diffuse = _edge_polarization_given_back(diffuse, v, lum)
+        diffuse = _edge_polarization_given_back(diffuse, v, lum, share)
         if keep is not None:
             keep["diffuse_polarization"] = xp.astype(diffuse, xp.float32)
     if opts["unpolarized"] == "none" and opts["one_colour"]:
-        diffuse = _one_specular_colour(diffuse, ic, gx)
+        diffuse = _one_specular_colour(diffuse, ic, gx, share, gate)
     if opts["evidence"]:
         diffuse = _highlight_evidence(diffuse, ic, gx, window=_odd(float(opts["evidence_window"]) * v["side"]))
     if keep is not None:
@@ -284,7 +287,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
                                               removed_share=opts["unpolarized"] == "none")
     info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
-            "polarized_floor": floor}
+            "polarized_floor": floor, "diffuse_like_share": share}
     if est is not None:
         info["polarized_colour"] = [float(x) for x in est.polarized]
     return xp.astype(_within_measured(diffuse, measured, gx), xp.float32), info
@@ -333,7 +336,8 @@ def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]
     coherent), and their common axis gives the signed amplitude of every channel along it.  Returns
     the quantities later steps use: ``ic``, ``q``, ``u`` (H, W, 3), ``isv``, ``imin``, ``amp``
     (smoothed) and ``amp_px`` (the pixel's own) signed amplitudes, ``sig`` (Stokes noise),
-    ``a_coh`` (H, W) the coherent amplitude in units of ``G``, ``k_small`` and ``side``.
+    ``a_coh`` (H, W) the coherent amplitude in units of ``G``, ``qq``, ``uu`` (H, W) the smoothed
+    Stokes components over ``G`` summed over the channels, ``k_small`` and ``side``.
     """
     xp = namespace(s)
     h, w = s.shape[1:3]
@@ -368,29 +372,42 @@ def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]
     # colour demosaicing's polarization errors differ between channels and partly cancel in it
     a_coh = xp.astype(nn / 3.0, xp.float32)
     return dict(ic=ic, q=q, u=u, isv=isv, imin=imin, amp=amp, amp_px=amp_px, a_coh=a_coh, sig=sig,
-                k_small=k_small, side=side)
+                k_small=k_small, side=side, qq=qq, uu=uu)
 
 
-def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], lum: Any) -> Any:
+def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], lum: Any, weight: float) -> Any:
     """Step 3: the polarized light along the local edge normal is the diffuse light's own, given back.
 
     At occluding contours the intensity gradient's axis is the normal's azimuth
     (:func:`polcam.separation._diffuse_polarization.radial_share`, structure tensor smoothed over
-    ``2 k_s + 1`` pixels).  Returns (H, W, 3), at most ``Ic``.
+    ``2 k_s + 1`` pixels).  ``weight`` in [0, 1] is the image's diffuse-like share
+    (:func:`polcam.separation._diffuse_polarization.diffuse_like_share`): that proportion of it is
+    given back.  Returns (H, W, 3), at most ``Ic``.
     """
     xp = namespace(diffuse)
     ic, imin = v["ic"], v["imin"]
     share = radial_share(v["q"], v["u"], lum, smooth=_odd(2 * v["k_small"] + 1))
-    return xp.minimum(diffuse + share * (ic - imin), ic)
+    return xp.minimum(diffuse + weight * share * (ic - imin), ic)
 
 
-def _one_specular_colour(diffuse: Any, ic: Any, gx: Any) -> Any:
-    """Step 4: what is removed is the largest multiple of ``G`` under every channel's removal.
+def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent: Any) -> Any:
+    """Step 4: what is removed is a multiple of ``G``, between two readings of the removal.
 
-    The polarized light of the body's colour beyond it is the diffuse light's own.
+    ``a_min``, the largest multiple of ``G`` under every channel's removal, keeps all of the
+    polarized light of the body's colour beyond it (the diffuse light's own); ``a_G``, the
+    least-squares projection of the removal on ``G``, reads it all as specular light and is not
+    biased low by one channel's demosaicing error at a highlight.  Where coherent polarized light
+    marks a highlight (``coherent``, (H, W) in [0, 1]) they are weighed by the image's
+    diffuse-like share ``weight`` in [0, 1]; elsewhere (noise, a matte surface) ``a_min`` alone:
+
+        a = a_min + coherent (1 - weight) max(a_G - a_min, 0),   at most min_c Ic_c / G_c.
     """
     xp = namespace(diffuse)
-    a = xp.maximum(xp.amin((ic - diffuse) / gx, axis=-1), 0.0)
+    removed = ic - diffuse
+    a_min = xp.maximum(xp.amin(removed / gx, axis=-1), 0.0)
+    a_g = (removed * gx).sum(axis=-1) / float((gx * gx).sum())
+    a = a_min + coherent * (1.0 - weight) * xp.maximum(a_g - a_min, 0.0)
+    a = xp.minimum(a, xp.maximum(xp.amin(ic / gx, axis=-1), 0.0))
     return ic - a[..., None] * gx
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from polcam.separation._diffuse_polarization import radial_share
+from polcam.separation._diffuse_polarization import diffuse_like_share, radial_share
 
 
 def _disk(h=64, w=64, r=20):
@@ -35,3 +35,28 @@ def test_no_share_where_the_gradient_has_no_direction():
     q = rng.normal(0, 0.01, (40, 40, 3)).astype(np.float32)
     u = rng.normal(0, 0.01, (40, 40, 3)).astype(np.float32)
     assert float(radial_share(q, u, lum, smooth=5).max()) == 0.0
+
+
+def _disk_polarization(phi, lum):
+    amp = 0.05 * (lum > 0.3)
+    return (amp * np.cos(2 * phi)).astype(np.float32), (amp * np.sin(2 * phi)).astype(np.float32)
+
+
+def test_diffuse_like_share_weighs_polarization_along_against_across_the_edges():
+    lum, azimuth, _ = _disk()
+    # along the contour's normal (diffuse light at an occluding contour): all diffuse-like
+    q, u = _disk_polarization(azimuth, lum)
+    assert diffuse_like_share(q, u, lum, smooth=5) > 0.95
+    # across it (a specular highlight's polarization): none
+    q, u = _disk_polarization(azimuth + np.pi / 2, lum)
+    assert diffuse_like_share(q, u, lum, smooth=5) < 0.05
+    # one fixed AoLP over the disk (a uniformly polarized surface): half its rim follows the
+    # normal, half crosses it: no preference
+    q, u = _disk_polarization(np.full_like(azimuth, 0.4), lum)
+    assert abs(diffuse_like_share(q, u, lum, smooth=5) - 0.5) < 0.05
+
+
+def test_diffuse_like_share_without_polarization_on_an_edge():
+    lum, _, _ = _disk()
+    zero = np.zeros(lum.shape, np.float32)
+    assert diffuse_like_share(zero, zero, lum, smooth=5) == 1.0
