@@ -10,10 +10,10 @@ from typing import Any
 from polcam import _imageops
 from polcam._xp import namespace
 
-__all__ = ["diffuse_like_share", "radial_share"]
+__all__ = ["diffuse_like_share", "edge_axis", "radial_share"]
 
 
-def radial_share(q: Any, u: Any, lum: Any, *, smooth: int) -> Any:
+def radial_share(q: Any, u: Any, lum: Any, *, smooth: int, axis: tuple[Any, Any, Any] | None = None) -> Any:
     """Share of each channel's polarized amplitude that lies along the local edge normal, (H, W, C) in [0, 1].
 
     Diffuse light leaving a dielectric is polarized along the azimuth of the surface normal (the
@@ -42,20 +42,23 @@ def radial_share(q: Any, u: Any, lum: Any, *, smooth: int) -> Any:
         (H, W) float32 intensity.
     smooth
         Odd side of the Gaussian window of the structure tensor.
+    axis
+        ``edge_axis(lum, smooth)`` when the caller has it already.
 
     Returns
     -------
     (H, W, C) float32 in [0, 1], of the same kind as ``q``.
     """
     xp = namespace(q)
-    c2, s2, coh = _edge_axis(lum, smooth)
+    c2, s2, coh = edge_axis(lum, smooth) if axis is None else axis
     par = q * c2[..., None] + u * s2[..., None]
     amp = xp.hypot(q, u)
     share = xp.clip(par / xp.maximum(amp, 1e-12), 0.0, 1.0) * xp.clip(coh, 0.0, 1.0)[..., None]
     return xp.astype(share, xp.float32)
 
 
-def diffuse_like_share(q: Any, u: Any, lum: Any, *, smooth: int) -> float:
+def diffuse_like_share(q: Any, u: Any, lum: Any, *, smooth: int,
+                       axis: tuple[Any, Any, Any] | None = None) -> float:
     """Share of the image's edge-coherent polarization that lies along the edge normals: the diffuse-like part.
 
     Diffuse polarization runs along the normal's azimuth (the gradient's axis at a contour),
@@ -79,20 +82,22 @@ def diffuse_like_share(q: Any, u: Any, lum: Any, *, smooth: int) -> float:
         (H, W) float32 intensity.
     smooth
         Odd side of the Gaussian window of the structure tensor.
+    axis
+        ``edge_axis(lum, smooth)`` when the caller has it already.
 
     Returns
     -------
     float in [0, 1]; 1.0 when no polarization lies on a coherent edge axis.
     """
     xp = namespace(q)
-    c2, s2, coh = _edge_axis(lum, smooth)
+    c2, s2, coh = edge_axis(lum, smooth) if axis is None else axis
     par = (q * c2 + u * s2) * xp.clip(coh, 0.0, 1.0)
     along = float(xp.maximum(par, 0.0).sum())
     across = float(xp.maximum(-par, 0.0).sum())
     return along / (along + across) if along + across > 0 else 1.0
 
 
-def _edge_axis(lum: Any, smooth: int) -> tuple[Any, Any, Any]:
+def edge_axis(lum: Any, smooth: int) -> tuple[Any, Any, Any]:
     """The gradient's doubled-angle axis ``(cos 2 psi, sin 2 psi)`` and its coherence, each (H, W).
 
     The structure tensor of ``lum`` (Sobel gradients, products Gaussian-smoothed over ``smooth``

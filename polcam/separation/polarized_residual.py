@@ -43,7 +43,7 @@ from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.separation._clipping import declipped, fill_clipped_highlights
-from polcam.separation._diffuse_polarization import diffuse_like_share, radial_share
+from polcam.separation._diffuse_polarization import diffuse_like_share, edge_axis, radial_share
 from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import peak_excess
 from polcam.separation._illuminant import SATURATED, check_efficiency, estimate_illuminant
@@ -272,9 +272,10 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
             keep["imin"] = xp.astype(imin, xp.float32)
     # how much of the edge-coherent polarization follows the edges (diffuse-like) rather than
     # crossing them (specular-like): steps 3 and 4 keep diffuse polarization in that proportion
-    share = diffuse_like_share(v["qq"], v["uu"], lum, smooth=_odd(2 * v["k_small"] + 1))
+    axis = edge_axis(lum, _odd(2 * v["k_small"] + 1))
+    share = diffuse_like_share(v["qq"], v["uu"], lum, smooth=0, axis=axis)
     if opts["edge_polarization"]:
-        diffuse = _edge_polarization_given_back(diffuse, v, lum, share)
+        diffuse = _edge_polarization_given_back(diffuse, v, lum, share, axis)
         if keep is not None:
             keep["diffuse_polarization"] = xp.astype(diffuse, xp.float32)
     if opts["unpolarized"] == "none" and opts["one_colour"]:
@@ -375,18 +376,19 @@ def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]
                 k_small=k_small, side=side, qq=qq, uu=uu)
 
 
-def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], lum: Any, weight: float) -> Any:
+def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], lum: Any, weight: float,
+                                  axis: tuple[Any, Any, Any]) -> Any:
     """Step 3: the polarized light along the local edge normal is the diffuse light's own, given back.
 
     At occluding contours the intensity gradient's axis is the normal's azimuth
     (:func:`polcam.separation._diffuse_polarization.radial_share`, structure tensor smoothed over
     ``2 k_s + 1`` pixels).  ``weight`` in [0, 1] is the image's diffuse-like share
     (:func:`polcam.separation._diffuse_polarization.diffuse_like_share`): that proportion of it is
-    given back.  Returns (H, W, 3), at most ``Ic``.
+    given back; ``axis`` is the structure tensor's (``edge_axis``).  Returns (H, W, 3), at most ``Ic``.
     """
     xp = namespace(diffuse)
     ic, imin = v["ic"], v["imin"]
-    share = radial_share(v["q"], v["u"], lum, smooth=_odd(2 * v["k_small"] + 1))
+    share = radial_share(v["q"], v["u"], lum, smooth=0, axis=axis)
     return xp.minimum(diffuse + weight * share * (ic - imin), ic)
 
 
