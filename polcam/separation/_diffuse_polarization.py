@@ -13,7 +13,7 @@ from polcam._xp import namespace
 __all__ = ["diffuse_like_share", "edge_axis", "radial_share"]
 
 
-def radial_share(q: Any, u: Any, lum: Any, *, smooth: int, axis: tuple[Any, Any, Any] | None = None) -> Any:
+def radial_share(q: Any, u: Any, axis: tuple[Any, Any, Any]) -> Any:
     """Share of each channel's polarized amplitude that lies along the local edge normal, (H, W, C) in [0, 1].
 
     Diffuse light leaving a dielectric is polarized along the azimuth of the surface normal (the
@@ -28,8 +28,8 @@ def radial_share(q: Any, u: Any, lum: Any, *, smooth: int, axis: tuple[Any, Any,
         A_par = q cos 2 psi + u sin 2 psi,   share = coh * clip(A_par / hypot(q, u), 0, 1)
 
     where ``psi`` and the coherence ``coh = |J_xx - J_yy, 2 J_xy| / (J_xx + J_yy)`` come from the
-    structure tensor ``J`` of ``lum`` (Sobel gradients, products Gaussian-smoothed over
-    ``smooth`` pixels): 1 on a straight edge, near 0 where the gradient's direction is noise, so
+    structure tensor ``J`` of the intensity (:func:`edge_axis`: Sobel gradients, products
+    Gaussian-smoothed): 1 on a straight edge, near 0 where the gradient's direction is noise, so
     that flat regions keep no share they cannot justify.  AoLP is counter-clockwise from the image
     x axis on the displayed image (y up), while the Sobel y gradient runs down the rows: the
     gradient's doubled angle is ``(gx^2 - gy^2, -2 gx gy)``.
@@ -38,27 +38,22 @@ def radial_share(q: Any, u: Any, lum: Any, *, smooth: int, axis: tuple[Any, Any,
     ----------
     q, u
         (H, W, C) float32 Stokes components ``(I0 - I90) / 2``, ``(I45 - I135) / 2`` (numpy or torch).
-    lum
-        (H, W) float32 intensity.
-    smooth
-        Odd side of the Gaussian window of the structure tensor.
     axis
-        ``edge_axis(lum, smooth)`` when the caller has it already.
+        ``edge_axis(lum, smooth)``: the intensity gradient's axis and its coherence.
 
     Returns
     -------
     (H, W, C) float32 in [0, 1], of the same kind as ``q``.
     """
     xp = namespace(q)
-    c2, s2, coh = edge_axis(lum, smooth) if axis is None else axis
+    c2, s2, coh = axis
     par = q * c2[..., None] + u * s2[..., None]
     amp = xp.hypot(q, u)
     share = xp.clip(par / xp.maximum(amp, 1e-12), 0.0, 1.0) * xp.clip(coh, 0.0, 1.0)[..., None]
     return xp.astype(share, xp.float32)
 
 
-def diffuse_like_share(q: Any, u: Any, lum: Any, *, smooth: int,
-                       axis: tuple[Any, Any, Any] | None = None) -> float:
+def diffuse_like_share(q: Any, u: Any, axis: tuple[Any, Any, Any]) -> float:
     """Share of the image's edge-coherent polarization that lies along the edge normals: the diffuse-like part.
 
     Diffuse polarization runs along the normal's azimuth (the gradient's axis at a contour),
@@ -78,19 +73,15 @@ def diffuse_like_share(q: Any, u: Any, lum: Any, *, smooth: int,
     q, u
         (H, W) float32 Stokes components of the polarized light (for colour: each channel over the
         illuminant, summed), smoothed over the coherent kernel (numpy or torch).
-    lum
-        (H, W) float32 intensity.
-    smooth
-        Odd side of the Gaussian window of the structure tensor.
     axis
-        ``edge_axis(lum, smooth)`` when the caller has it already.
+        ``edge_axis(lum, smooth)``, as for :func:`radial_share`.
 
     Returns
     -------
     float in [0, 1]; 1.0 when no polarization lies on a coherent edge axis.
     """
     xp = namespace(q)
-    c2, s2, coh = edge_axis(lum, smooth) if axis is None else axis
+    c2, s2, coh = axis
     par = (q * c2 + u * s2) * xp.clip(coh, 0.0, 1.0)
     along = float(xp.maximum(par, 0.0).sum())
     across = float(xp.maximum(-par, 0.0).sum())

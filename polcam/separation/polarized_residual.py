@@ -273,9 +273,9 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
     # how much of the edge-coherent polarization follows the edges (diffuse-like) rather than
     # crossing them (specular-like): steps 3 and 4 keep diffuse polarization in that proportion
     axis = edge_axis(lum, _odd(2 * v["k_small"] + 1))
-    share = diffuse_like_share(v["qq"], v["uu"], lum, smooth=0, axis=axis)
+    share = diffuse_like_share(v["qq"], v["uu"], axis)
     if opts["edge_polarization"]:
-        diffuse = _edge_polarization_given_back(diffuse, v, lum, share, axis)
+        diffuse = _edge_polarization_given_back(diffuse, v, share, axis)
         if keep is not None:
             keep["diffuse_polarization"] = xp.astype(diffuse, xp.float32)
     if opts["unpolarized"] == "none" and opts["one_colour"]:
@@ -376,7 +376,7 @@ def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]
                 k_small=k_small, side=side, qq=qq, uu=uu)
 
 
-def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], lum: Any, weight: float,
+def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], weight: float,
                                   axis: tuple[Any, Any, Any]) -> Any:
     """Step 3: the polarized light along the local edge normal is the diffuse light's own, given back.
 
@@ -388,7 +388,7 @@ def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], lum: Any, wei
     """
     xp = namespace(diffuse)
     ic, imin = v["ic"], v["imin"]
-    share = radial_share(v["q"], v["u"], lum, smooth=0, axis=axis)
+    share = radial_share(v["q"], v["u"], axis)
     return xp.minimum(diffuse + weight * share * (ic - imin), ic)
 
 

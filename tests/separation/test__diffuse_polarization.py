@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from polcam.separation._diffuse_polarization import diffuse_like_share, radial_share
+from polcam.separation._diffuse_polarization import diffuse_like_share, edge_axis, radial_share
 
 
 def _disk(h=64, w=64, r=20):
@@ -24,7 +24,7 @@ def test_polarization_along_a_contours_normal_is_diffuse_and_across_it_is_not():
         amp = 0.05
         q = np.repeat((amp * np.cos(2 * phi))[..., None], 3, -1).astype(np.float32)
         u = np.repeat((amp * np.sin(2 * phi))[..., None], 3, -1).astype(np.float32)
-        share = radial_share(q, u, lum, smooth=5)
+        share = radial_share(q, u, edge_axis(lum, 5))
         assert share.shape == q.shape and share.min() >= 0 and share.max() <= 1
         assert abs(float(share[rim].mean()) - want) < 0.1
 
@@ -34,7 +34,7 @@ def test_no_share_where_the_gradient_has_no_direction():
     lum = np.full((40, 40), 0.5, np.float32)
     q = rng.normal(0, 0.01, (40, 40, 3)).astype(np.float32)
     u = rng.normal(0, 0.01, (40, 40, 3)).astype(np.float32)
-    assert float(radial_share(q, u, lum, smooth=5).max()) == 0.0
+    assert float(radial_share(q, u, edge_axis(lum, 5)).max()) == 0.0
 
 
 def _disk_polarization(phi, lum):
@@ -46,17 +46,17 @@ def test_diffuse_like_share_weighs_polarization_along_against_across_the_edges()
     lum, azimuth, _ = _disk()
     # along the contour's normal (diffuse light at an occluding contour): all diffuse-like
     q, u = _disk_polarization(azimuth, lum)
-    assert diffuse_like_share(q, u, lum, smooth=5) > 0.95
+    assert diffuse_like_share(q, u, edge_axis(lum, 5)) > 0.95
     # across it (a specular highlight's polarization): none
     q, u = _disk_polarization(azimuth + np.pi / 2, lum)
-    assert diffuse_like_share(q, u, lum, smooth=5) < 0.05
+    assert diffuse_like_share(q, u, edge_axis(lum, 5)) < 0.05
     # one fixed AoLP over the disk (a uniformly polarized surface): half its rim follows the
     # normal, half crosses it: no preference
     q, u = _disk_polarization(np.full_like(azimuth, 0.4), lum)
-    assert abs(diffuse_like_share(q, u, lum, smooth=5) - 0.5) < 0.05
+    assert abs(diffuse_like_share(q, u, edge_axis(lum, 5)) - 0.5) < 0.05
 
 
 def test_diffuse_like_share_without_polarization_on_an_edge():
     lum, _, _ = _disk()
     zero = np.zeros(lum.shape, np.float32)
-    assert diffuse_like_share(zero, zero, lum, smooth=5) == 1.0
+    assert diffuse_like_share(zero, zero, edge_axis(lum, 5)) == 1.0
