@@ -170,7 +170,9 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         ``illuminant`` (RGB, mean 1), ``illuminant_source``, ``efficiency``, ``clipped_pixels``,
         ``clipped_filled``, ``clipped_as_measured`` (pixels with a channel clipped at all four
         angles, and how they were treated), ``residual_ratio`` (unpolarized / polarized specular
-        light; 0 unless ``unpolarized="measured"``).
+        light; 0 unless ``unpolarized="measured"``); for colour stacks ``diffuse_like_share`` (in
+        [0, 1]: how much of the edge-coherent polarization follows the edges, the weight of steps 3
+        and 4).
     """
     return _separate(stack, options, None)
 
