@@ -107,6 +107,8 @@ class NumpyXP:
         return np.divide(a, b, out=out, where=ok)
 
     exp = staticmethod(np.exp)
+    log = staticmethod(np.log)
+    tanh = staticmethod(np.tanh)
     floor = staticmethod(np.floor)
     hypot = staticmethod(np.hypot)
     isfinite = staticmethod(np.isfinite)
@@ -306,6 +308,12 @@ class TorchXP:
 
     def exp(self, a: Any, out: Any = None) -> Any:
         return self.torch.exp(a) if out is None else self.torch.exp(a, out=out)
+
+    def log(self, a: Any) -> Any:
+        return self.torch.log(a)
+
+    def tanh(self, a: Any) -> Any:
+        return self.torch.tanh(a)
 
     def floor(self, a: Any) -> Any:
         return self.torch.floor(a)

@@ -16,10 +16,13 @@ validation sweeps behind every choice):
   Kajiyama et al. WACV 2023).
 * One specular colour: what is removed is the largest multiple of ``G`` under
   every channel's removal; polarized light in the body's colour stays diffuse.
-* The unpolarized part ``(1 - rho_s) s G`` of the specular light stays in the
-  diffuse by default (on the randomized family's validation split every estimate
-  of it cost accuracy); ``unpolarized="measured"`` runs the steps of
-  :mod:`polcam.separation._residual` (k from coloured highlights, a colour prior).
+* The unpolarized part ``(1 - rho_s) s G`` of the specular light: by default
+  (``unpolarized="learned"``) a small model trained on the randomized family's
+  training scenes reads it from local measures, near coherent polarized light,
+  off clipped pixels and never beyond the pixel's rise above its surroundings
+  (:mod:`polcam.separation._learned_residual`); ``"none"`` leaves it in the
+  diffuse; ``"measured"`` runs the steps of :mod:`polcam.separation._residual`
+  (k from coloured highlights, a colour prior).
 * Optionally (``evidence=True``) the removal is bounded by the pixel's rise
   above its surroundings' floor (:mod:`polcam.separation._highlight`).
 * Clipped highlights (a channel at the white level at all four angles) are filled
@@ -47,12 +50,20 @@ from polcam.separation._diffuse_polarization import diffuse_like_share, edge_axi
 from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import peak_excess
 from polcam.separation._illuminant import SATURATED, check_efficiency, estimate_illuminant
+from polcam.separation._learned_residual import FEATURES as LEARNED_FEATURES
+from polcam.separation._learned_residual import WEIGHTS_FILE as LEARNED_WEIGHTS
+from polcam.separation._learned_residual import apply as _learned_apply
+from polcam.separation._learned_residual import features as _learned_features
+from polcam.separation._learned_residual import load_weights as _learned_weights
+from polcam.separation._learned_residual import removal_bound as _learned_bound
+from polcam.separation._learned_residual import zone as _learned_zone
 from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
 from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
 from polcam.separation.tensor.torch_backend import check_device
 
-__all__ = ["REFERENCE", "separate_polarized_residual", "stages", "DEFAULTS"]
+__all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "DEFAULTS", "LEARNED_FEATURES",
+           "LEARNED_WEIGHTS"]
 
 REFERENCE = (
     "polcam's own method; builds on L. B. Wolff & T. E. Boult, IEEE TPAMI 13(7) 1991 (polarization "
@@ -72,7 +83,7 @@ DEFAULTS: dict[str, Any] = {
     "max_ratio": 4.0,            # unpolarized specular residual <= max_ratio x the polarized specular nearby
     "noise": "shrink",           # the amplitude's noise bias: "off", "rice", "shrink" (garrote) or "thresh";
                                  # unless "off", the colour prior's removal is shrunk by the noise too
-    "unpolarized": "none",       # the unpolarized specular light: "none" (left in the diffuse) or "measured"
+    "unpolarized": "learned",    # the unpolarized specular light: "learned" (_learned_residual), "none" (left in the diffuse) or "measured"
                                  # (steps of _residual: one specular colour, k from coloured highlights, colour prior)
     "edge_fit": 1,               # demosaicing's polarization at edges fitted and removed: 0 (off), 1 or 2 (order)
     "edge_polarization": True,   # give back the polarized light along the local edge normal (_diffuse_polarization)
@@ -104,8 +115,9 @@ _HIGHLIGHT_BORDER = 0.03
 def _check(opts: dict[str, Any]) -> None:
     if opts["edge_fit"] not in (0, 1, 2) or isinstance(opts["edge_fit"], bool):
         raise MethodError(f"polarized-residual: edge_fit={opts['edge_fit']!r}: expected 0, 1 or 2")
-    if opts["unpolarized"] not in ("none", "measured"):
-        raise MethodError(f"polarized-residual: unpolarized={opts['unpolarized']!r}: expected 'none' or 'measured'")
+    if opts["unpolarized"] not in ("none", "measured", "learned"):
+        raise MethodError(f"polarized-residual: unpolarized={opts['unpolarized']!r}: "
+                          "expected 'none', 'measured' or 'learned'")
     for k in ("context", "min_saturation", "polarized_threshold", "evidence_window"):
         v = opts[k]
         if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not (0 < float(v) < 1):
@@ -158,8 +170,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         (0, 1 or 2: demosaicing's edge polarization fitted to that order and removed),
         ``edge_polarization`` (give back the polarized light along the local edge normal),
         ``one_colour`` (remove only a multiple of ``G``), ``evidence`` and ``evidence_window``
-        (bound the removal by the rise above the surroundings), ``unpolarized`` ("none" or
-        "measured": the optional steps, with ``diffuse_polarization``, ``context``, ``hue_bins``,
+        (bound the removal by the rise above the surroundings), ``unpolarized`` ("learned", the
+        default: the learned stage; "none"; or "measured": the optional steps, with ``diffuse_polarization``, ``context``, ``hue_bins``,
         ``min_saturation``, ``max_ratio``, ``residual_model``), ``polarized_threshold``.
 
     Returns
@@ -172,7 +184,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         angles, and how they were treated), ``residual_ratio`` (unpolarized / polarized specular
         light; 0 unless ``unpolarized="measured"``); for colour stacks ``diffuse_like_share`` (in
         [0, 1]: how much of the edge-coherent polarization follows the edges, the weight of steps 3
-        and 4).
+        and 4) and, with ``unpolarized="learned"``, ``learned_specular`` (the share of the layer's
+        light the learned stage removed, in [0, 1]).
     """
     return _separate(stack, options, None)
 
@@ -204,9 +217,40 @@ def stages(stack: np.ndarray, **options: Any) -> dict[str, np.ndarray]:
     return keep
 
 
-def _separate(stack: Any, options: dict[str, Any],
-              keep: dict[str, Any] | None) -> tuple[Any, dict[str, Any]]:
-    """:func:`separate_polarized_residual`; with ``keep`` (a dict), the step layers go into it."""
+def learned_inputs(stack: np.ndarray, **options: Any) -> dict[str, Any]:
+    """The learned stage's inputs on a colour stack, as polarized-residual computes them (its training reads them).
+
+    Parameters
+    ----------
+    stack
+        (4, H, W, 3) float in [0, 1], angles 0, 45, 90, 135.
+    **options
+        As :func:`separate_polarized_residual`, except ``unpolarized`` (the layer is taken before
+        the stage, as with ``unpolarized="none"``).
+
+    Returns
+    -------
+    dict
+        ``diffuse`` (H, W, 3) the layer before the stage; ``zone`` (H, W) bool, where it acts;
+        ``x`` (N, F) float32 the features of the zone's pixels (row-major);
+        ``bound`` (H, W) float32 >= 0 the most it may remove, in units of ``G``; ``g`` (3,) ``G``.
+    """
+    inputs: dict[str, Any] = {}
+    _separate(stack, {**options, "unpolarized": "none"}, None, inputs)
+    if not inputs:
+        raise MethodError(f"polarized-residual: stack of shape {np.shape(stack)}: the learned stage takes "
+                          "colour stacks (4, H, W, 3)")
+    return inputs
+
+
+def _separate(stack: Any, options: dict[str, Any], keep: dict[str, Any] | None,
+              inputs: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+    """:func:`separate_polarized_residual`; with ``keep`` (a dict), the step layers go into it.
+
+    With ``inputs`` (a dict, colour stacks), the learned stage's inputs go into it (``diffuse``
+    before that stage, ``x`` (the zone's features, (N, F)), ``bound``, ``zone``, ``g``), whether or not
+    the stage runs.
+    """
     unknown = set(options) - set(DEFAULTS)
     if unknown:
         raise MethodError(f"polarized-residual: unknown option(s) {', '.join(sorted(unknown))}")
@@ -218,7 +262,7 @@ def _separate(stack: Any, options: dict[str, Any],
     elif s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
         raise MethodError(f"polarized-residual: stack of shape {tuple(s.shape)}: expected (4, H, W, 3) or (4, H, W)")
     else:
-        diffuse, info = _colour(s, opts, keep)
+        diffuse, info = _colour(s, opts, keep, inputs)
     if host:
         xp = namespace(s)
         diffuse = xp.to_numpy(diffuse)
@@ -244,7 +288,8 @@ def _on_device(stack: Any, device: str | None) -> tuple[Any, bool]:
     return torch.as_tensor(np.ascontiguousarray(s), device=torch.device(device)), True
 
 
-def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[Any, dict[str, Any]]:
+def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
+            inputs: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
     """The colour path of :func:`_separate` on a (4, H, W, 3) float32 stack (numpy or torch).
 
     Steps 0-6 of docs/methods/polarized-residual.md ("Colour stacks, as implemented"), one function
@@ -267,7 +312,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
         ratio, ratio_source = extra["ratio"], extra["ratio_source"]
     else:
         # where coherent polarized light marks a highlight (the clipped regions' fill asks it)
-        floor, _, gate, spec = highlight_mask(v["a_coh"], lum, v["k_small"], g, float(opts["polarized_threshold"]))
+        floor, a_eff, gate, spec = highlight_mask(v["a_coh"], lum, v["k_small"], g, float(opts["polarized_threshold"]))
         diffuse = imin
         ratio, ratio_source = 0.0, "none"
         if keep is not None:
@@ -280,20 +325,46 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None) -> tuple[
         diffuse = _edge_polarization_given_back(diffuse, v, share, axis)
         if keep is not None:
             keep["diffuse_polarization"] = xp.astype(diffuse, xp.float32)
-    if opts["unpolarized"] == "none" and opts["one_colour"]:
+    if opts["unpolarized"] != "measured" and opts["one_colour"]:
         diffuse = _one_specular_colour(diffuse, ic, gx, share, gate)
     if opts["evidence"]:
         diffuse = _highlight_evidence(diffuse, ic, gx, window=_odd(float(opts["evidence_window"]) * v["side"]))
     if keep is not None:
         keep["evidence_bounded"] = xp.astype(diffuse, xp.float32)
     diffuse, clip_stats = _clipped_highlights(diffuse, measured, ic, spec, gx,
-                                              removed_share=opts["unpolarized"] == "none")
+                                              removed_share=opts["unpolarized"] != "measured")
     info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor, "diffuse_like_share": share}
     if est is not None:
         info["polarized_colour"] = [float(x) for x in est.polarized]
-    return xp.astype(_within_measured(diffuse, measured, gx), xp.float32), info
+    diffuse = _within_measured(diffuse, measured, gx)
+    if opts["unpolarized"] == "learned" or (inputs is not None and opts["unpolarized"] == "none"):
+        diffuse, info["learned_specular"] = _learned_stage(diffuse, v, gx, gate, a_eff, share, axis, measured,
+                                                           run=opts["unpolarized"] == "learned", inputs=inputs)
+    return xp.astype(diffuse, xp.float32), info
+
+
+def _learned_stage(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
+                   axis: tuple[Any, Any, Any], measured: Any, *, run: bool,
+                   inputs: dict[str, Any] | None) -> tuple[Any, float]:
+    """Step 7 (``unpolarized="learned"``): the unpolarized specular light a small model reads, removed along ``G``.
+
+    :mod:`polcam.separation._learned_residual`: near coherent polarized light, off clipped pixels,
+    and at most the pixel's rise above its surroundings.  Returns the layer (unchanged unless
+    ``run``) and the light removed as a share of the layer's light; ``inputs`` (a dict or None)
+    receives the model's inputs.
+    """
+    side = int(v["side"])
+    bound = _learned_bound(diffuse, v["ic"], gx, side)
+    where = _learned_zone(gate, measured, SATURATED, side, bound)
+    x = _learned_features(diffuse, v, gx, gate, a_eff, share, axis, measured, SATURATED, bound, where)
+    if inputs is not None:
+        inputs.update(diffuse=diffuse, x=x, bound=bound, zone=where, g=gx)
+    if not run:
+        return diffuse, 0.0
+    out, _ = _learned_apply(diffuse, x, bound, where, gx, _learned_weights())
+    return out, float((diffuse - out).sum()) / max(float(diffuse.sum()), _LIGHT_GUARD)
 
 
 def _coherent_kernel(side: int) -> int:

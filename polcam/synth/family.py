@@ -41,10 +41,12 @@ over the lights, averaged over 2 x 2 sensor pixels; ``diffuse_mono`` its mean ov
 mono sensor with a flat response sees).
 
 Splits (:func:`split_seeds`): ``validation`` is the seeds 0, 1, 2, ...
-(fixed; below :data:`TEST_SEED_MIN`); ``test`` draws its scene seeds from
+(fixed; below :data:`TRAINING_SEED_MIN`); ``test`` draws its scene seeds from
 ``numpy.random.default_rng(master)`` in ``[TEST_SEED_MIN, 2**31)``, the master
 seed fresh from the operating system unless given, so the two never share a
-scene and a test run is reproduced from its printed master seed.
+scene and a test run is reproduced from its printed master seed.  Learned
+stages train on a third, disjoint range (:func:`training_seeds`, from
+:data:`TRAINING_SEED_MIN`).
 
 Usage::
 
@@ -74,13 +76,16 @@ from polcam.polarimetry import dolp
 from polcam.synth.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo
 from polcam.synth.render import SceneSpec, Texture, render
 
-__all__ = ["SPLITS", "TEST_SEED_MIN", "SHAPES", "PHOTOS", "MaterialTexture", "FamilyScene",
+__all__ = ["SPLITS", "TEST_SEED_MIN", "TRAINING_SEED_MIN", "training_seeds", "SHAPES", "PHOTOS", "MaterialTexture", "FamilyScene",
            "draw", "render_family", "split_seeds", "scene_name", "seed_of"]
 
 #: The splits of :func:`split_seeds`.
 SPLITS = ("validation", "test")
 #: Test scene seeds are at least this; validation seeds are below it.
 TEST_SEED_MIN = 1_000_000
+#: First seed of the training scenes (:func:`training_seeds`): above any validation seed
+#: (``n`` is at most this) and below every test seed.
+TRAINING_SEED_MIN = 500_000
 #: Shapes and their views (rotation about x, y, z in degrees; focal; camera distance).
 SHAPES: dict[str, dict[str, Any]] = {
     "bunny": {"rotation": (0.0, -25.0, 0.0), "focal": 2.0, "camera_distance": 2.5},
@@ -231,7 +236,7 @@ def split_seeds(split: str, n: int = 40, *, seed: int | None = None) -> tuple[li
         ``test``: ``n`` seeds drawn by ``numpy.random.default_rng(seed)`` from
         ``[TEST_SEED_MIN, 2**31)``, without repeats.
     n
-        Number of scenes, 1 to ``TEST_SEED_MIN``.
+        Number of scenes, 1 to ``TRAINING_SEED_MIN`` (validation) or ``TEST_SEED_MIN`` (test).
     seed
         The test split's master seed; None: a fresh one from the operating
         system.
@@ -249,8 +254,9 @@ def split_seeds(split: str, n: int = 40, *, seed: int | None = None) -> tuple[li
     """
     if split not in SPLITS:
         raise PolcamError(f"split {split!r}: expected one of {', '.join(SPLITS)}")
-    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or not 1 <= n <= TEST_SEED_MIN:
-        raise PolcamError(f"number of scenes {n!r}: expected an integer in 1..{TEST_SEED_MIN}")
+    most = TRAINING_SEED_MIN if split == "validation" else TEST_SEED_MIN
+    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or not 1 <= n <= most:
+        raise PolcamError(f"number of scenes {n!r}: expected an integer in 1..{most}")
     if split == "validation":
         if seed is not None:
             raise PolcamError(f"seed {seed!r}: the validation split's seeds are fixed (0..n-1); "
@@ -263,6 +269,41 @@ def split_seeds(split: str, n: int = 40, *, seed: int | None = None) -> tuple[li
     seeds = rng.choice(2**31 - TEST_SEED_MIN, size=int(n), replace=False) + TEST_SEED_MIN
     return [int(s) for s in seeds], master
 
+
+
+def training_seeds(n: int, *, start: int = 0) -> list[int]:
+    """The seeds of the scenes learned stages are trained on: ``TRAINING_SEED_MIN + start + i``.
+
+    Disjoint from both splits of :func:`split_seeds` (validation seeds are below
+    :data:`TRAINING_SEED_MIN`, test seeds at least :data:`TEST_SEED_MIN`).
+
+    Parameters
+    ----------
+    n
+        Number of scenes, >= 1.
+    start
+        Offset of the first seed, >= 0; ``start + n`` at most ``TEST_SEED_MIN - TRAINING_SEED_MIN``.
+
+    Returns
+    -------
+    list of int
+
+    Raises
+    ------
+    PolcamError
+        ``n`` or ``start`` out of range.
+
+    Examples
+    --------
+    >>> training_seeds(2)
+    [500000, 500001]
+    """
+    room = TEST_SEED_MIN - TRAINING_SEED_MIN
+    ok = all(isinstance(x, (int, np.integer)) and not isinstance(x, bool) for x in (n, start))
+    if not ok or n < 1 or start < 0 or start + n > room:
+        raise PolcamError(f"training scenes n={n!r}, start={start!r}: expected n >= 1, start >= 0 "
+                          f"and start + n <= {room}")
+    return [TRAINING_SEED_MIN + int(start) + i for i in range(int(n))]
 
 def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))

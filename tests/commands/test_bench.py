@@ -12,7 +12,7 @@ from polcam.cli import build_parser, main
 from polcam.synth.scenes import SCENES
 
 BENCHES = {"demosaic", "train-lmmse", "demosaic-validation", "sihr", "quality", "speed", "real", "stability",
-           "default-rule", "calibration", "scenes"}
+           "default-rule", "calibration", "scenes", "train-residual"}
 
 
 def _bench_parser() -> argparse.ArgumentParser:

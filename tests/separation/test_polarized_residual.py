@@ -532,7 +532,8 @@ def _torch_cases():
             "Bunny5": (bunny, {}), "Bunny5 mono": (bunny.mean(axis=-1), {}),
             "options": (noisy, {"efficiency": (1.0, 0.9, 0.8), "noise": "rice", "residual_model": "hue"}),
             "measured steps": (noisy, {"unpolarized": "measured"}),
-            "measured clipped": (clipped, {"illuminant": (1, 1, 1), "unpolarized": "measured"})}
+            "measured clipped": (clipped, {"illuminant": (1, 1, 1), "unpolarized": "measured"}),
+            "learned": (bunny, {"unpolarized": "learned"}), "learned noisy": (noisy, {"unpolarized": "learned"})}
 
 
 @pytest.fixture(scope="module")

@@ -33,7 +33,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                                    "judged by physics. stability: how much a method's layer moves when its "
                                    "input barely does (continuity, frame-to-frame flicker). "
                                    "And the tooling behind what polcam ships: train-lmmse (the lmmse weights), "
-                                   "demosaic-validation (their settings), default-rule (the default separation "
+                                   "demosaic-validation (their settings), train-residual (the weights of "
+                                   "polarized-residual's learned stage), default-rule (the default separation "
                                    "method per input form), scenes (the synthetic scenes' statistics).")
     bsub = b.add_subparsers(dest="bench", required=True, metavar="BENCH")
     demosaicing.add_parsers(bsub)

@@ -1,19 +1,22 @@
-"""``polcam bench quality``, ``sihr``, ``speed``, ``real``, ``stability`` and ``default-rule``: the
-separation methods' benchmarks and the rule that picks the default method."""
+"""``polcam bench quality``, ``sihr``, ``speed``, ``real``, ``stability``, ``default-rule`` and
+``train-residual``: the separation methods' benchmarks, the rule that picks the default method and
+the training of polarized-residual's learned stage."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
 from polcam._jsonable import jsonable
-from polcam.bench import default_rule, quality, real, relit, sihr, stability
+from polcam.bench import default_rule, quality, real, relit, residual_training, sihr, stability
 from polcam.commands.bench import speed
 from polcam.errors import FrameReadError, MethodError, PolcamError
 from polcam.io.atomic import atomic_write
+from polcam.separation.polarized_residual import LEARNED_WEIGHTS as RESIDUAL_WEIGHTS
 from polcam.synth.family import scene_name, split_seeds
 
 __all__ = ["add_parsers"]
@@ -23,6 +26,7 @@ def add_parsers(bsub: Any) -> None:
     """Add the separation sub-commands to ``polcam bench``."""
     _add_sihr(bsub)
     _add_quality(bsub)
+    _add_train_residual(bsub)
     bp = bsub.add_parser("speed", help="speed targets; the tensor method's solvers (--sizes), other methods "
                                        "(--method), the maps (--maps)",
                          description="Without --sizes, --method or --maps: every speed target's figure in one "
@@ -266,4 +270,44 @@ def run_default_rule(a: argparse.Namespace) -> int:
         with atomic_write(a.out, "w") as fh:
             fh.write(json.dumps(table, indent=1) + "\n")
         print(f"wrote {a.out}")
+    return 0
+
+
+def _add_train_residual(bsub: Any) -> None:
+    rt = residual_training
+    ap = bsub.add_parser("train-residual", help="train polarized-residual's learned unpolarized-specular stage",
+                         description="Train the learned stage of polarized-residual (unpolarized=\"learned\") on "
+                                     "the randomized family's training seeds (polcam.bench.residual_training) and "
+                                     "write the weights atomically.")
+    ap.add_argument("--scenes", type=int, default=200, help="training scenes (default 200)")
+    ap.add_argument("--size", type=int, default=128, help="scene side in pixels (default 128)")
+    ap.add_argument("--start", type=int, default=0, help="offset of the first training seed (default 0)")
+    ap.add_argument("--samples", type=int, default=rt.DEFAULT_SAMPLES,
+                    help=f"pixels fitted (default {rt.DEFAULT_SAMPLES})")
+    ap.add_argument("--iterations", type=int, default=rt.DEFAULT_ITERATIONS,
+                    help=f"L-BFGS iterations (default {rt.DEFAULT_ITERATIONS})")
+    ap.add_argument("--l2", type=float, default=rt.DEFAULT_L2, help=f"weight decay (default {rt.DEFAULT_L2:g})")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the subset and the initial weights (default 0)")
+    ap.add_argument("--out", type=Path, default=RESIDUAL_WEIGHTS, help="output .npz (default: the shipped weights)")
+    ap.set_defaults(bench_run=_run_train_residual, bench_parser=ap)
+
+
+def _run_train_residual(args: argparse.Namespace) -> int:
+    """Run a parsed ``polcam bench train-residual``: train, then write the weights and how they were made."""
+    rt = residual_training
+    for name in ("scenes", "size", "samples", "iterations"):
+        if getattr(args, name) < (32 if name == "size" else 1):
+            args.bench_parser.error(f"--{name} {getattr(args, name)}: expected a positive integer (size >= 32)")
+    if args.start < 0 or args.l2 < 0:
+        args.bench_parser.error("--start and --l2: expected non-negative numbers")
+    t0 = time.perf_counter()
+    weights = rt.train(args.scenes, size=args.size, start=args.start, max_samples=args.samples,
+                       iterations=args.iterations, l2=args.l2, seed=args.seed)
+    options = (f"--scenes {args.scenes} --size {args.size} --start {args.start} --samples {args.samples} "
+               f"--iterations {args.iterations} --l2 {args.l2:g} --seed {args.seed}")
+    info = {"command": f"polcam bench train-residual {options}", "hidden": list(rt.DEFAULT_HIDDEN),
+            "data": "the randomized scene family's training seeds (polcam.synth.family.training_seeds), albedo "
+                    "from public-domain / CC0 photographs of scikit-image; no other data"}
+    rt.save_weights(weights, args.out, info=info)
+    sys.stderr.write(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s (loss {float(weights['loss']):.4g})\n")
     return 0

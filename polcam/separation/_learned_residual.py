@@ -1,0 +1,290 @@
+"""The unpolarized specular light left in the diffuse, estimated by a small learned model.
+
+A specular reflection is partly polarized: of its light ``s G`` the polarization sinusoid shows
+``rho_s s G``, which polarized-residual removes, and ``(1 - rho_s) s G`` stays in the diffuse
+layer.  ``rho_s`` is the Fresnel degree of polarization at the incidence angle (and the refractive
+index), which one pixel does not show; no single ratio fits every highlight (on the randomized
+family's validation scenes the true unpolarized / polarized ratio ranges over 0 to 24).  What does
+show it is local: how far the pixel rises above its neighbourhood, how close its colour is to
+``G`` against the colour around it, how much polarized light was removed there and whether that
+light crosses the edges (specular) or follows them (diffuse, at rims).
+
+This stage maps those local measures (:func:`features`, 33 per pixel, ratios free of the exposure
+but for the measured level) to the share of the light it may remove, along ``G``, that is
+unpolarized specular:
+
+    s = b * clip(z, 0, 1),    z = MLP(x),
+    b = min(min_c D_c / G_c, e),    e = the rise of the pixel above its surroundings' floor,
+    D' = D - s G,
+
+inside the neighbourhood of coherent polarized light (the highlight gate of
+:func:`polcam.separation._residual.highlight_mask`, dilated) and off clipped pixels; nothing is
+removed elsewhere.  ``e`` (:func:`polcam.separation._highlight.peak_excess`, in units of ``G``, the
+floor an opening over a square of :data:`EVIDENCE_WINDOW` of the larger side) is the evidence of a
+highlight at the place: a uniform matte patch does not rise above itself, so it is never thinned.
+The removal is one multiple of ``G`` per pixel (the layer keeps one specular colour) and never more
+than the layer holds.  Clipped pixels (a channel at the white level) do not show their colour or
+level; polarized-residual's clipped fill treats them.
+
+The MLP (33 -> 24 -> 24 -> 1, tanh) is trained by ``polcam bench train-residual``
+(:mod:`polcam.bench.residual_training`) on the randomized scene family's training seeds only
+(:func:`polcam.synth.family.training_seeds`, disjoint from validation and test), whose albedo
+photographs are public domain or CC0, so the weights ship.  Kernel sizes are shares of the image's
+larger side (as trained at 128 pixels), so a larger frame sees the same neighbourhoods; above twice
+that side the blurs run on the image shrunk to about the training resolution (:func:`_blur`).
+
+One implementation for numpy and PyTorch (:mod:`polcam._xp`, :mod:`polcam._imageops`).
+"""
+
+from __future__ import annotations
+
+import json
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from polcam import _imageops
+from polcam._xp import namespace
+from polcam.errors import MethodError
+from polcam.separation._highlight import peak_excess
+
+__all__ = ["WEIGHTS_FILE", "TRAIN_SIDE", "FEATURES", "EVIDENCE_WINDOW", "removal_bound", "features", "zone", "apply",
+           "forward",
+           "load_weights", "unpolarized_specular"]
+
+#: The shipped weights (made by ``polcam bench train-residual``).
+WEIGHTS_FILE = Path(__file__).with_name("residual_weights.npz")
+#: The scenes' side the model is trained at; kernel sizes below are in pixels at this side.
+TRAIN_SIDE = 128
+#: Smallest light (in units of ``G``) a ratio is divided by: far below one 12-bit code value.
+_EPS = 1e-4
+#: The features, in order (names stored with the weights and checked when they load).
+FEATURES = (
+    "removed/L", "smax/L", "white", "diffuse_white", "dolp", "gate", "gate@13", "gate@37",
+    "a_eff/L", "share", "clipped", "measured_max",
+    "P", "P_pixel", "coherence", "coherent_dolp", "P*gate@19", "P*gate@49", "P@49",
+    "log L/L@9", "log removed@9/L", "white@9-white",
+    "log L/L@25", "log removed@25/L", "white@25-white",
+    "log L/L@61", "log removed@61/L", "white@61-white",
+    "log L/max5", "log min5/L", "log L/max15", "log min15/L", "bound/L",
+)
+#: Pixels per block of the model's evaluation (its hidden layers stay in the cache).
+_CHUNK = 16384
+#: The side of the square the highlight gate is dilated by: where the stage acts.
+_ZONE = 9
+#: Side of the surroundings (share of the image's larger side) above whose floor a pixel must rise for
+#: light to be removed there: a highlight is a peak over its own material.  A sweep on the validation
+#: split, for the model trained without the bound (0.06: 27.35 dB, 0.12: 27.37, 0.25: 27.50, none:
+#: 27.54), against the matte grey checker of tests/separation/test_polarized_residual_physics.py
+#: (0.25 and none keep under 0.98 of its light); 0.12 is also polarized-residual's ``context``.
+EVIDENCE_WINDOW = 0.12
+#: Side of the median filter of the evidence (as polarized-residual's step 5): demosaicing's one- or
+#: two-pixel overshoot at edges stays out of the pixel's level and the floor.
+_EVIDENCE_MEDIAN = 5
+
+
+def _k(px: int, side: int) -> int:
+    """A kernel of ``px`` pixels at :data:`TRAIN_SIDE`, scaled to an image of larger side ``side`` (odd, >= 3)."""
+    k = max(int(round(px * side / TRAIN_SIDE)), 3)
+    return k if k % 2 else k + 1
+
+
+def _blur(a: Any, px: int, side: int) -> Any:
+    """A Gaussian blur over ``px`` pixels at :data:`TRAIN_SIDE`, for an image of larger side ``side``.
+
+    At up to twice the training side, the ``k x k`` Gaussian with ``k`` scaled to the image; above,
+    the same blur at the training resolution: the image shrunk by the integer factor
+    ``side // TRAIN_SIDE`` (area), blurred with the training kernel, and brought back (bilinear), so
+    a wide neighbourhood costs what it costs at 128 pixels.
+    """
+    f = side // TRAIN_SIDE
+    if f < 2:
+        return _imageops.gaussian(a, _k(px, side))
+    h, w = a.shape[:2]
+    small = _imageops.resize(a, (max(w // f, 1), max(h // f, 1)), interpolation="area")
+    return _imageops.resize(_imageops.gaussian(small, _k(px, side // f)), (w, h), interpolation="linear")
+
+
+def removal_bound(diffuse: Any, ic: Any, gx: Any, side: int) -> Any:
+    """The most the stage may remove, in units of ``G``: ``b = min(min_c D_c / G_c, e)``, (H, W) float32 >= 0.
+
+    ``e`` is the rise of ``ic`` (H, W, 3) above its surroundings' floor
+    (:func:`polcam.separation._highlight.peak_excess`, an opening over a square of
+    :data:`EVIDENCE_WINDOW` of the larger side ``side``).
+    """
+    xp = namespace(diffuse)
+    smax = xp.maximum(xp.amin(diffuse / gx, axis=-1), 0.0)
+    excess = peak_excess(ic, gx, window=_k(EVIDENCE_WINDOW * TRAIN_SIDE, side), smooth=_EVIDENCE_MEDIAN)
+    return xp.astype(xp.minimum(smax, excess), xp.float32)
+
+
+def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
+             axis: tuple[Any, Any, Any], measured: Any, saturated: float, bound: Any, where: Any = None) -> Any:
+    """The per-pixel measures the model reads.
+
+    Parameters
+    ----------
+    diffuse
+        (H, W, 3) the layer so far (polarized light removed, clipped regions treated).
+    v
+        The quantities of polarized-residual's step 2: ``ic``, ``imin``, ``q``, ``u`` (H, W, 3),
+        ``qq``, ``uu`` (H, W) and ``side``.
+    gx
+        (3,) the illuminant's colour ``G`` (mean 1), where the arrays are.
+    gate, a_eff
+        (H, W): the highlight gate in [0, 1] and the coherent polarized amplitude over its floor.
+    share
+        The image's diffuse-like share in [0, 1].
+    axis
+        The structure tensor's ``(cos 2 psi, sin 2 psi, coherence)``, each (H, W).
+    measured
+        (H, W, 3) the mean over the four angles as measured; ``saturated`` its white level.
+    bound
+        (H, W) :func:`removal_bound`.
+    where
+        (H, W) bool or None: the pixels whose features are wanted (None: all).
+
+    Returns
+    -------
+    x : array
+        (N, 33) float32 at the ``where`` pixels in row-major order ((H, W, 33) without ``where``),
+        :data:`FEATURES` in order: ratios and logs of ratios (free of the exposure), the clipped
+        flag and the measured level.
+    """
+    xp = namespace(diffuse)
+    side = int(v["side"])
+    ic = v["ic"]
+    gsq = float((gx * gx).sum())
+    light = xp.maximum((ic / gx).mean(axis=-1), _EPS)
+    removed = ((ic - diffuse) * gx).sum(axis=-1) / gsq
+    smax = xp.maximum(xp.amin(diffuse / gx, axis=-1), 0.0)
+    white = xp.amin(ic / gx, axis=-1) / light
+    dlight = xp.maximum((diffuse / gx).mean(axis=-1), _EPS)
+    dwhite = xp.amin(diffuse / gx, axis=-1) / dlight
+    dolp = xp.clip((ic - v["imin"]).sum(axis=-1) / xp.maximum(ic.sum(axis=-1), _EPS), 0.0, 1.0)
+    c2, s2, coh = axis
+    nn = xp.maximum(xp.hypot(v["qq"], v["uu"]), 1e-6)
+    along = (v["qq"] * c2 + v["uu"] * s2) / nn * coh
+    qs = (v["q"] / gx).sum(axis=-1)
+    us = (v["u"] / gx).sum(axis=-1)
+    along_px = (qs * c2 + us * s2) / xp.maximum(xp.hypot(qs, us), 1e-6)
+    def g(a: Any, px: int) -> Any:
+        return _blur(a, px, side)
+
+    f = [removed / light, smax / light, white, dwhite, dolp, gate, g(gate, 13), g(gate, 37),
+         a_eff * float(gx.mean()) / light, xp.zeros(light.shape, like=light) + float(share),
+         xp.astype(xp.amax(measured, axis=-1) >= saturated, xp.float32), xp.amax(measured, axis=-1),
+         along, along_px, coh, nn / 3.0 / light,
+         g(along * gate, 19), g(along * gate, 49), g(along, 49)]
+    for px in (9, 25, 61):
+        f.append(xp.log(light / xp.maximum(g(light, px), _EPS)))
+        f.append(xp.log(xp.maximum(g(removed, px), 0.0) / light + 1e-3))
+        f.append(g(white, px) - white)
+    for px in (5, 15):
+        k = _k(px, side)
+        f.append(xp.log(light / xp.maximum(_imageops.dilate(light, k), _EPS)))
+        f.append(xp.log(xp.maximum(_imageops.erode(light, k), _EPS) / light))
+    f.append(bound / light)
+    if where is None:
+        return xp.stack([xp.astype(a, xp.float32) for a in f], axis=-1)
+    # (F, N) rows copied whole, then seen as (N, F): matrix products read the transpose in place
+    return xp.stack([xp.astype(a[where], xp.float32) for a in f], axis=0).T
+
+
+def zone(gate: Any, measured: Any, saturated: float, side: int, bound: Any) -> Any:
+    """(H, W) bool: where the stage may act.
+
+    The highlight gate's support dilated by :data:`_ZONE` pixels (at :data:`TRAIN_SIDE`), less the
+    pixels whose measured mean reaches ``saturated`` in a channel and those whose ``bound``
+    (:func:`removal_bound`) is 0, where nothing could be removed.
+    """
+    xp = namespace(gate)
+    near = _imageops.dilate(xp.astype(gate > 0, xp.float32), _k(_ZONE, side)) > 0
+    return near & (xp.amax(measured, axis=-1) < saturated) & (bound > 0)
+
+
+def forward(x: Any, weights: dict[str, np.ndarray]) -> Any:
+    """The MLP's output ``z`` (N,) for (N, F) features: normalised, tanh hidden layers, a linear head.
+
+    The normalisation ``(x - mu) / sd`` is folded into the first layer's weights.
+    """
+    xp = namespace(x)
+    mu, sd = np.asarray(weights["mu"], np.float64), np.asarray(weights["sd"], np.float64)
+    w0 = np.asarray(weights["w0"], np.float64)
+    folded = {"w0": w0 / sd[:, None], "b0": np.asarray(weights["b0"], np.float64) - (mu / sd) @ w0}
+    n = int(weights["layers"])
+    layers = [(xp.asarray(np.ascontiguousarray(np.asarray(folded.get(f"w{i}", weights[f"w{i}"]), np.float32).T),
+                          like=x),
+               xp.asarray(np.asarray(folded.get(f"b{i}", weights[f"b{i}"]), np.float32)[:, None], like=x))
+              for i in range(n)]
+    xt = x.T                                                 # (F, N): each layer a (out, in) @ (in, N) product
+    total = xt.shape[1]
+    if total == 0:
+        return xp.zeros((0,), like=x)
+    out = []
+    for start in range(0, total, _CHUNK):                    # blocks that stay in the cache
+        h = xt[:, start:start + _CHUNK]
+        for i, (w, b) in enumerate(layers):
+            h = w @ h
+            h += b
+            if i < n - 1:
+                h = xp.tanh(h)
+        out.append(h[0])
+    return xp.concatenate(out) if len(out) != 1 else out[0]
+
+
+def apply(diffuse: Any, x: Any, bound: Any, where: Any, gx: Any, weights: dict[str, np.ndarray]) -> tuple[Any, Any]:
+    """``D - s G`` with ``s = bound clip(z, 0, 1)`` where ``where`` (H, W) holds, 0 elsewhere; and ``s``.
+
+    ``x`` holds the features of the ``where`` pixels ((N, F), :func:`features` given ``where``).
+    """
+    xp = namespace(diffuse)
+    s = xp.zeros(bound.shape, like=bound)
+    s[where] = bound[where] * xp.clip(forward(x, weights), 0.0, 1.0)
+    return xp.maximum(diffuse - s[..., None] * gx, 0.0), s
+
+
+@lru_cache(maxsize=4)
+def _load(path: str) -> dict[str, np.ndarray]:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            w = {k: z[k] for k in z.files}
+    except (OSError, ValueError) as e:
+        raise MethodError(f"polarized-residual: learned-residual weights {path}: unreadable ({e}); "
+                          "remake them with `polcam bench train-residual`") from e
+    names = tuple(json.loads(str(w.get("features", np.array("[]")))))
+    if names != FEATURES:
+        raise MethodError(f"polarized-residual: learned-residual weights {path}: features {list(names)[:3]}... "
+                          f"do not match this polcam's {len(FEATURES)} features; remake them with "
+                          "`polcam bench train-residual`")
+    n = int(w["layers"])
+    if w["mu"].shape != (len(FEATURES),) or w[f"w{n - 1}"].shape[1] != 1:
+        raise MethodError(f"polarized-residual: learned-residual weights {path}: shapes "
+                          f"{w['mu'].shape} / {w[f'w{n - 1}'].shape}: expected ({len(FEATURES)},) inputs, one output")
+    for k in w:
+        if w[k].dtype.kind == "f":
+            w[k] = w[k].astype(np.float32)
+    return w
+
+
+def load_weights(path: str | Path | None = None) -> dict[str, np.ndarray]:
+    """The model's arrays (``layers``, ``mu``, ``sd``, ``w0``, ``b0``, ...; the shipped file by default)."""
+    return _load(str(WEIGHTS_FILE if path is None else Path(path)))
+
+
+def unpolarized_specular(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
+                         axis: tuple[Any, Any, Any], measured: Any, saturated: float,
+                         weights: dict[str, np.ndarray] | None = None) -> tuple[Any, Any]:
+    """The layer less the learned unpolarized specular light, and that light in units of ``G`` (H, W).
+
+    Arguments as :func:`features`; ``weights`` from :func:`load_weights` (the shipped ones by
+    default).  Returns (H, W, 3) at most ``diffuse`` and >= 0, and (H, W) ``s`` >= 0.
+    """
+    w = load_weights() if weights is None else weights
+    side = int(v["side"])
+    bound = removal_bound(diffuse, v["ic"], gx, side)
+    where = zone(gate, measured, saturated, side, bound)
+    x = features(diffuse, v, gx, gate, a_eff, share, axis, measured, saturated, bound, where)
+    return apply(diffuse, x, bound, where, gx, w)

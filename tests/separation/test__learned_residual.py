@@ -1,0 +1,83 @@
+"""The learned unpolarized-specular stage of polarized-residual: where it acts, what it removes, its weights."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import polcam
+from polcam.bench.quality import psnr
+from polcam.errors import MethodError
+from polcam.separation import _learned_residual as lr
+from polcam.separation.polarized_residual import _separate, separate_polarized_residual
+from polcam.synth.family import render_family, split_seeds
+
+
+def test_shipped_weights_load_and_name_this_polcams_features() -> None:
+    w = lr.load_weights()
+    assert int(w["layers"]) == 3 and w["mu"].shape == (len(lr.FEATURES),)
+    with np.load(lr.WEIGHTS_FILE) as z:
+        info = json.loads(str(z["info"]))
+    assert info["command"].startswith("polcam bench train-residual")     # how they were made
+
+
+def test_weights_of_other_features_are_refused_naming_the_file(tmp_path) -> None:
+    w = {k: v for k, v in lr.load_weights().items() if k != "features"}
+    bad = tmp_path / "old.npz"
+    np.savez(bad, features=np.array(json.dumps(["a", "b"])), **w)
+    with pytest.raises(MethodError, match="old.npz.*do not match"):
+        lr.load_weights(bad)
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not an npz")
+    with pytest.raises(MethodError, match="junk.npz.*unreadable"):
+        lr.load_weights(junk)
+
+
+def test_a_stack_without_polarized_light_is_left_as_it_is() -> None:
+    """No coherent polarized light, no zone: a matte textured patch is never thinned by the stage."""
+    rng = np.random.default_rng(3)
+    d = np.clip(0.3 + 0.2 * rng.random((48, 48, 3)), 0, 1).astype(np.float32)
+    stack = np.broadcast_to(d, (4, 48, 48, 3)).copy()
+    none, _ = separate_polarized_residual(stack, unpolarized="none")
+    learned, info = separate_polarized_residual(stack, unpolarized="learned")
+    np.testing.assert_array_equal(learned, none)
+    assert info["learned_specular"] == 0.0
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return render_family(split_seeds("validation", 6)[0][5], size=96)       # a glossy validation scene
+
+
+def test_the_removal_is_one_colour_bounded_by_the_layer_and_inside_the_zone(scene) -> None:
+    inputs: dict = {}
+    none, _ = _separate(scene.stack, {"unpolarized": "none"}, None, inputs)
+    learned, info = separate_polarized_residual(scene.stack, unpolarized="learned")
+    removed = none - learned
+    assert removed.min() >= 0 and (learned >= 0).all()
+    g = np.asarray(inputs["g"])
+    share = removed / g                                                 # one multiple of G per pixel
+    assert np.abs(share - share.mean(-1, keepdims=True)).max() < 1e-5
+    assert not removed[~np.asarray(inputs["zone"])].any()
+    assert 0 < info["learned_specular"] < 0.5
+    np.testing.assert_allclose(info["learned_specular"], removed.sum() / none.sum(), rtol=1e-4)
+
+
+def test_the_stage_brings_glossy_validation_scenes_closer_to_the_truth() -> None:
+    """Ground truth of the randomized family (validation seeds, never trained on): the glossy scenes'
+    diffuse gets closer to the truth with the stage than without it, on the mean."""
+    gain = []
+    for sd in split_seeds("validation", 10)[0]:
+        sc = render_family(sd, size=96)
+        if sc.params["ks"] < 0.3:
+            continue
+        none = polcam.separate(sc.stack, method="polarized-residual", unpolarized="none").diffuse
+        learned = polcam.separate(sc.stack, method="polarized-residual", unpolarized="learned").diffuse
+        gain.append(psnr(learned, sc.diffuse, sc.mask) - psnr(none, sc.diffuse, sc.mask))
+    assert len(gain) >= 3 and float(np.mean(gain)) > 0.3
+
+
+def test_kernels_scale_with_the_image() -> None:
+    assert lr._k(9, lr.TRAIN_SIDE) == 9 and lr._k(9, 4 * lr.TRAIN_SIDE) == 37 and lr._k(1, 64) == 3
