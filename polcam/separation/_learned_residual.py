@@ -85,6 +85,24 @@ EVIDENCE_WINDOW = 0.12
 _EVIDENCE_MEDIAN = 5
 
 
+def _cmin(a: Any) -> Any:
+    """The least of the last axis' three channels (elementwise over the channels: a reduction over a
+    three-long axis is several times slower in numpy)."""
+    xp = namespace(a)
+    return xp.minimum(xp.minimum(a[..., 0], a[..., 1]), a[..., 2])
+
+
+def _cmax(a: Any) -> Any:
+    """The largest of the last axis' three channels."""
+    xp = namespace(a)
+    return xp.maximum(xp.maximum(a[..., 0], a[..., 1]), a[..., 2])
+
+
+def _csum(a: Any) -> Any:
+    """The sum of the last axis' three channels."""
+    return a[..., 0] + a[..., 1] + a[..., 2]
+
+
 def _k(px: int, side: int) -> int:
     """A kernel of ``px`` pixels at :data:`TRAIN_SIDE`, scaled to an image of larger side ``side`` (odd, >= 3)."""
     k = max(int(round(px * side / TRAIN_SIDE)), 3)
@@ -115,14 +133,14 @@ def removal_bound(diffuse: Any, ic: Any, gx: Any, side: int) -> Any:
     :data:`EVIDENCE_WINDOW` of the larger side ``side``).
     """
     xp = namespace(diffuse)
-    smax = xp.maximum(xp.amin(diffuse / gx, axis=-1), 0.0)
+    smax = xp.maximum(_cmin(diffuse / gx), 0.0)
     excess = peak_excess(ic, gx, window=_k(EVIDENCE_WINDOW * TRAIN_SIDE, side), smooth=_EVIDENCE_MEDIAN)
     return xp.astype(xp.minimum(smax, excess), xp.float32)
 
 
 def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
-             axis: tuple[Any, Any, Any], measured: Any, saturated: float, bound: Any, where: Any = None) -> Any:
-    """The per-pixel measures the model reads.
+             axis: tuple[Any, Any, Any], measured: Any, saturated: float, bound: Any, where: Any) -> Any:
+    """The per-pixel measures the model reads, at the ``where`` pixels.
 
     Parameters
     ----------
@@ -144,53 +162,60 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     bound
         (H, W) :func:`removal_bound`.
     where
-        (H, W) bool or None: the pixels whose features are wanted (None: all).
+        (H, W) bool: the pixels whose features are wanted (:func:`zone`).
 
     Returns
     -------
     x : array
-        (N, 33) float32 at the ``where`` pixels in row-major order ((H, W, 33) without ``where``),
-        :data:`FEATURES` in order: ratios and logs of ratios (free of the exposure), the clipped
-        flag and the measured level.
+        (N, 33) float32, the ``where`` pixels in row-major order, :data:`FEATURES` in order: ratios
+        and logs of ratios (free of the exposure), the clipped flag and the measured level.
+        Neighbourhood measures are computed over the whole image, the pixel's own only where
+        wanted.
     """
     xp = namespace(diffuse)
     side = int(v["side"])
     ic = v["ic"]
     gsq = float((gx * gx).sum())
-    light = xp.maximum((ic / gx).mean(axis=-1), _EPS)
-    removed = ((ic - diffuse) * gx).sum(axis=-1) / gsq
-    smax = xp.maximum(xp.amin(diffuse / gx, axis=-1), 0.0)
-    white = xp.amin(ic / gx, axis=-1) / light
-    dlight = xp.maximum((diffuse / gx).mean(axis=-1), _EPS)
-    dwhite = xp.amin(diffuse / gx, axis=-1) / dlight
-    dolp = xp.clip((ic - v["imin"]).sum(axis=-1) / xp.maximum(ic.sum(axis=-1), _EPS), 0.0, 1.0)
     c2, s2, coh = axis
+    # whole-image maps that neighbourhood measures read
+    icg = ic / gx
+    light = xp.maximum(_csum(icg) / 3.0, _EPS)
+    removed = _csum((ic - diffuse) * gx) / gsq
+    white = _cmin(icg) / light
     nn = xp.maximum(xp.hypot(v["qq"], v["uu"]), 1e-6)
     along = (v["qq"] * c2 + v["uu"] * s2) / nn * coh
-    qs = (v["q"] / gx).sum(axis=-1)
-    us = (v["u"] / gx).sum(axis=-1)
-    along_px = (qs * c2 + us * s2) / xp.maximum(xp.hypot(qs, us), 1e-6)
-    def g(a: Any, px: int) -> Any:
-        return _blur(a, px, side)
 
-    f = [removed / light, smax / light, white, dwhite, dolp, gate, g(gate, 13), g(gate, 37),
-         a_eff * float(gx.mean()) / light, xp.zeros(light.shape, like=light) + float(share),
-         xp.astype(xp.amax(measured, axis=-1) >= saturated, xp.float32), xp.amax(measured, axis=-1),
-         along, along_px, coh, nn / 3.0 / light,
+    def g(a: Any, px: int) -> Any:
+        return _blur(a, px, side)[where]
+
+    # the pixel's own measures, where wanted
+    lw = light[where]
+    dw = diffuse[where] / gx
+    dmin = _cmin(dw)
+    icw = ic[where]
+    qs = _csum(v["q"][where] / gx)
+    us = _csum(v["u"][where] / gx)
+    c2w, s2w = c2[where], s2[where]
+    mmax = _cmax(measured[where])
+    f = [removed[where] / lw, xp.maximum(dmin, 0.0) / lw, white[where],
+         dmin / xp.maximum(_csum(dw) / 3.0, _EPS),
+         xp.clip(_csum(icw - v["imin"][where]) / xp.maximum(_csum(icw), _EPS), 0.0, 1.0),
+         gate[where], g(gate, 13), g(gate, 37),
+         a_eff[where] * float(gx.mean()) / lw, xp.zeros(lw.shape, like=lw) + float(share),
+         xp.astype(mmax >= saturated, xp.float32), mmax,
+         along[where], (qs * c2w + us * s2w) / xp.maximum(xp.hypot(qs, us), 1e-6), coh[where], nn[where] / 3.0 / lw,
          g(along * gate, 19), g(along * gate, 49), g(along, 49)]
     for px in (9, 25, 61):
-        f.append(xp.log(light / xp.maximum(g(light, px), _EPS)))
-        f.append(xp.log(xp.maximum(g(removed, px), 0.0) / light + 1e-3))
-        f.append(g(white, px) - white)
+        f.append(xp.log(lw / xp.maximum(g(light, px), _EPS)))
+        f.append(xp.log(xp.maximum(g(removed, px), 0.0) / lw + 1e-3))
+        f.append(g(white, px) - white[where])
     for px in (5, 15):
         k = _k(px, side)
-        f.append(xp.log(light / xp.maximum(_imageops.dilate(light, k), _EPS)))
-        f.append(xp.log(xp.maximum(_imageops.erode(light, k), _EPS) / light))
-    f.append(bound / light)
-    if where is None:
-        return xp.stack([xp.astype(a, xp.float32) for a in f], axis=-1)
+        f.append(xp.log(lw / xp.maximum(_imageops.dilate(light, k)[where], _EPS)))
+        f.append(xp.log(xp.maximum(_imageops.erode(light, k)[where], _EPS) / lw))
+    f.append(bound[where] / lw)
     # (F, N) rows copied whole, then seen as (N, F): matrix products read the transpose in place
-    return xp.stack([xp.astype(a[where], xp.float32) for a in f], axis=0).T
+    return xp.stack([xp.astype(a, xp.float32) for a in f], axis=0).T
 
 
 def zone(gate: Any, measured: Any, saturated: float, side: int, bound: Any) -> Any:
@@ -202,7 +227,7 @@ def zone(gate: Any, measured: Any, saturated: float, side: int, bound: Any) -> A
     """
     xp = namespace(gate)
     near = _imageops.dilate(xp.astype(gate > 0, xp.float32), _k(_ZONE, side)) > 0
-    return near & (xp.amax(measured, axis=-1) < saturated) & (bound > 0)
+    return near & (_cmax(measured) < saturated) & (bound > 0)
 
 
 def forward(x: Any, weights: dict[str, np.ndarray]) -> Any:
