@@ -51,14 +51,13 @@ from polcam.errors import MethodError
 from polcam.separation._highlight import peak_excess
 
 __all__ = ["WEIGHTS_FILE", "TRAIN_SIDE", "FEATURES", "EVIDENCE_WINDOW", "removal_bound", "features", "zone", "apply",
-           "forward",
-           "load_weights", "unpolarized_specular"]
+           "forward", "load_weights", "unpolarized_specular"]
 
 #: The shipped weights (made by ``polcam bench train-residual``).
 WEIGHTS_FILE = Path(__file__).with_name("residual_weights.npz")
 #: The scenes' side the model is trained at; kernel sizes below are in pixels at this side.
 TRAIN_SIDE = 128
-#: Smallest light (in units of ``G``) a ratio is divided by: far below one 12-bit code value.
+#: Smallest light (in units of ``G``) a ratio is divided by: under one 12-bit code value (1/4095).
 _EPS = 1e-4
 #: The features, in order (names stored with the weights and checked when they load).
 FEATURES = (

@@ -83,8 +83,9 @@ DEFAULTS: dict[str, Any] = {
     "max_ratio": 4.0,            # unpolarized specular residual <= max_ratio x the polarized specular nearby
     "noise": "shrink",           # the amplitude's noise bias: "off", "rice", "shrink" (garrote) or "thresh";
                                  # unless "off", the colour prior's removal is shrunk by the noise too
-    "unpolarized": "learned",    # the unpolarized specular light: "learned" (_learned_residual), "none" (left in the diffuse) or "measured"
-                                 # (steps of _residual: one specular colour, k from coloured highlights, colour prior)
+    "unpolarized": "learned",    # the unpolarized specular light: "learned" (_learned_residual), "none" (left in
+                                 # the diffuse) or "measured" (steps of _residual: one specular colour, k from
+                                 # coloured highlights, colour prior)
     "edge_fit": 1,               # demosaicing's polarization at edges fitted and removed: 0 (off), 1 or 2 (order)
     "edge_polarization": True,   # give back the polarized light along the local edge normal (_diffuse_polarization)
     "one_colour": True,          # remove only a multiple of the illuminant's colour G
@@ -171,8 +172,9 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         ``edge_polarization`` (give back the polarized light along the local edge normal),
         ``one_colour`` (remove only a multiple of ``G``), ``evidence`` and ``evidence_window``
         (bound the removal by the rise above the surroundings), ``unpolarized`` ("learned", the
-        default: the learned stage; "none"; or "measured": the optional steps, with ``diffuse_polarization``, ``context``, ``hue_bins``,
-        ``min_saturation``, ``max_ratio``, ``residual_model``), ``polarized_threshold``.
+        default: the learned stage; "none"; or "measured": the optional steps, with
+        ``diffuse_polarization``, ``context``, ``hue_bins``, ``min_saturation``, ``max_ratio``,
+        ``residual_model``), ``polarized_threshold``.
 
     Returns
     -------
@@ -292,7 +294,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
             inputs: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
     """The colour path of :func:`_separate` on a (4, H, W, 3) float32 stack (numpy or torch).
 
-    Steps 0-6 of docs/methods/polarized-residual.md ("Colour stacks, as implemented"), one function
+    Steps 0-7 of docs/methods/polarized-residual.md ("Colour stacks, as implemented"), one function
     each; with ``unpolarized="measured"`` :func:`polcam.separation._residual.residual_steps` takes the
     place of steps 2 and 4.
     """
