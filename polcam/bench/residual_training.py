@@ -32,7 +32,7 @@ from polcam.io.atomic import atomic_path
 from polcam.separation.polarized_residual import LEARNED_FEATURES, learned_inputs
 from polcam.synth.family import render_family, training_seeds
 
-__all__ = ["DEFAULT_HIDDEN", "DEFAULT_L2", "DEFAULT_ITERATIONS", "DEFAULT_SAMPLES", "scene_samples",
+__all__ = ["DEFAULT_HIDDEN", "DEFAULT_L2", "DEFAULT_ITERATIONS", "DEFAULT_SAMPLES", "DEFAULT_SCENES", "scene_samples",
            "training_samples", "fit", "train", "save_weights"]
 
 #: Hidden layer widths.
@@ -41,8 +41,10 @@ DEFAULT_HIDDEN = (24, 24)
 DEFAULT_L2 = 1e-4
 #: L-BFGS iterations.
 DEFAULT_ITERATIONS = 400
+#: Training scenes (validation split: 200 scenes 27.36 dB, 400 scenes with 500,000 pixels 27.43).
+DEFAULT_SCENES = 400
 #: Pixels fitted (a random subset of the zones of all scenes).
-DEFAULT_SAMPLES = 250_000
+DEFAULT_SAMPLES = 500_000
 #: Least error (MSE, linear light) a scene's weight is taken at: 45 dB.
 _MSE_FLOOR = 10 ** (-45 / 10)
 #: Weight of backdrop pixels against the object's.
@@ -133,7 +135,7 @@ def fit(samples: dict[str, np.ndarray], *, hidden: tuple[int, ...] = DEFAULT_HID
     return out
 
 
-def train(n: int = 200, *, size: int = 128, start: int = 0, max_samples: int = DEFAULT_SAMPLES,
+def train(n: int = DEFAULT_SCENES, *, size: int = 128, start: int = 0, max_samples: int = DEFAULT_SAMPLES,
           hidden: tuple[int, ...] = DEFAULT_HIDDEN, l2: float = DEFAULT_L2,
           iterations: int = DEFAULT_ITERATIONS, seed: int = 0) -> dict[str, np.ndarray]:
     """Render ``n`` training scenes and fit the model (:func:`training_samples`, :func:`fit`)."""

@@ -279,7 +279,7 @@ def _add_train_residual(bsub: Any) -> None:
                          description="Train the learned stage of polarized-residual (unpolarized=\"learned\") on "
                                      "the randomized family's training seeds (polcam.bench.residual_training) and "
                                      "write the weights atomically.")
-    ap.add_argument("--scenes", type=int, default=200, help="training scenes (default 200)")
+    ap.add_argument("--scenes", type=int, default=rt.DEFAULT_SCENES, help=f"training scenes (default {rt.DEFAULT_SCENES})")
     ap.add_argument("--size", type=int, default=128, help="scene side in pixels (default 128)")
     ap.add_argument("--start", type=int, default=0, help="offset of the first training seed (default 0)")
     ap.add_argument("--samples", type=int, default=rt.DEFAULT_SAMPLES,
