@@ -11,7 +11,7 @@ import polcam
 from polcam.bench.quality import psnr
 from polcam.errors import MethodError
 from polcam.separation import _learned_residual as lr
-from polcam.separation.polarized_residual import _separate, separate_polarized_residual
+from polcam.separation.polarized_residual import learned_inputs, separate_polarized_residual
 from polcam.synth.family import render_family, split_seeds
 
 
@@ -52,14 +52,20 @@ def scene():
 
 
 def test_the_removal_is_one_colour_bounded_by_the_layer_and_inside_the_zone(scene) -> None:
-    inputs: dict = {}
-    none, _ = _separate(scene.stack, {"unpolarized": "none"}, None, inputs)
+    inputs = learned_inputs(scene.stack)
+    none = np.asarray(inputs["diffuse"])                                # the layer before the stage
+    np.testing.assert_allclose(none, polcam.separate(scene.stack, method="polarized-residual",
+                                                     unpolarized="none").diffuse, rtol=0, atol=1e-6)
     learned, info = separate_polarized_residual(scene.stack, unpolarized="learned")
     removed = none - learned
     assert removed.min() >= 0 and (learned >= 0).all()
     g = np.asarray(inputs["g"])
     share = removed / g                                                 # one multiple of G per pixel
     assert np.abs(share - share.mean(-1, keepdims=True)).max() < 1e-5
+    # never more than the pixel rises above its surroundings (the evidence bound), which is > 0
+    # somewhere and 0 somewhere in this scene
+    bound = np.asarray(inputs["bound"])
+    assert (share[..., 0] <= bound + 1e-6).all() and (bound > 0).any() and (bound == 0).any()
     assert not removed[~np.asarray(inputs["zone"])].any()
     assert 0 < info["learned_specular"] < 0.5
     np.testing.assert_allclose(info["learned_specular"], removed.sum() / none.sum(), rtol=1e-4)
