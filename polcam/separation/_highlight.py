@@ -12,7 +12,11 @@ from typing import Any
 from polcam import _imageops
 from polcam._xp import namespace
 
-__all__ = ["peak_excess"]
+__all__ = ["EVIDENCE_MEDIAN", "peak_excess"]
+
+#: Side of the median filter its callers take before the opening: it keeps demosaicing's one- or
+#: two-pixel overshoot at edges out of both the pixel's level and its surroundings' floor.
+EVIDENCE_MEDIAN = 5
 
 
 def peak_excess(ic: Any, g: Any, *, window: int, smooth: int) -> Any:

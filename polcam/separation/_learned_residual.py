@@ -48,10 +48,11 @@ import numpy as np
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
-from polcam.separation._highlight import peak_excess
+from polcam.separation._common import max3, min3, sum3
+from polcam.separation._highlight import EVIDENCE_MEDIAN, peak_excess
 
 __all__ = ["WEIGHTS_FILE", "TRAIN_SIDE", "FEATURES", "EVIDENCE_WINDOW", "removal_bound", "features", "zone", "apply",
-           "forward", "load_weights", "unpolarized_specular"]
+           "forward", "load_weights", "stage_inputs"]
 
 #: The shipped weights (made by ``polcam bench train-residual``).
 WEIGHTS_FILE = Path(__file__).with_name("residual_weights.npz")
@@ -79,27 +80,6 @@ _ZONE = 9
 #: 27.54), against the matte grey checker of tests/separation/test_polarized_residual_physics.py
 #: (0.25 and none keep under 0.98 of its light); 0.12 is also polarized-residual's ``context``.
 EVIDENCE_WINDOW = 0.12
-#: Side of the median filter of the evidence (as polarized-residual's step 5): demosaicing's one- or
-#: two-pixel overshoot at edges stays out of the pixel's level and the floor.
-_EVIDENCE_MEDIAN = 5
-
-
-def _cmin(a: Any) -> Any:
-    """The least of the last axis' three channels (elementwise over the channels: a reduction over a
-    three-long axis is several times slower in numpy)."""
-    xp = namespace(a)
-    return xp.minimum(xp.minimum(a[..., 0], a[..., 1]), a[..., 2])
-
-
-def _cmax(a: Any) -> Any:
-    """The largest of the last axis' three channels."""
-    xp = namespace(a)
-    return xp.maximum(xp.maximum(a[..., 0], a[..., 1]), a[..., 2])
-
-
-def _csum(a: Any) -> Any:
-    """The sum of the last axis' three channels."""
-    return a[..., 0] + a[..., 1] + a[..., 2]
 
 
 def _k(px: int, side: int) -> int:
@@ -132,8 +112,8 @@ def removal_bound(diffuse: Any, ic: Any, gx: Any, side: int) -> Any:
     :data:`EVIDENCE_WINDOW` of the larger side ``side``).
     """
     xp = namespace(diffuse)
-    smax = xp.maximum(_cmin(diffuse / gx), 0.0)
-    excess = peak_excess(ic, gx, window=_k(EVIDENCE_WINDOW * TRAIN_SIDE, side), smooth=_EVIDENCE_MEDIAN)
+    smax = xp.maximum(min3(diffuse / gx), 0.0)
+    excess = peak_excess(ic, gx, window=_k(EVIDENCE_WINDOW * TRAIN_SIDE, side), smooth=EVIDENCE_MEDIAN)
     return xp.astype(xp.minimum(smax, excess), xp.float32)
 
 
@@ -178,9 +158,9 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     c2, s2, coh = axis
     # whole-image maps that neighbourhood measures read
     icg = ic / gx
-    light = xp.maximum(_csum(icg) / 3.0, _EPS)
-    removed = _csum((ic - diffuse) * gx) / gsq
-    white = _cmin(icg) / light
+    light = xp.maximum(sum3(icg) / 3.0, _EPS)
+    removed = sum3((ic - diffuse) * gx) / gsq
+    white = min3(icg) / light
     nn = xp.maximum(xp.hypot(v["qq"], v["uu"]), 1e-6)
     along = (v["qq"] * c2 + v["uu"] * s2) / nn * coh
 
@@ -190,15 +170,15 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     # the pixel's own measures, where wanted
     lw = light[where]
     dw = diffuse[where] / gx
-    dmin = _cmin(dw)
+    dmin = min3(dw)
     icw = ic[where]
-    qs = _csum(v["q"][where] / gx)
-    us = _csum(v["u"][where] / gx)
+    qs = sum3(v["q"][where] / gx)
+    us = sum3(v["u"][where] / gx)
     c2w, s2w = c2[where], s2[where]
-    mmax = _cmax(measured[where])
+    mmax = max3(measured[where])
     f = [removed[where] / lw, xp.maximum(dmin, 0.0) / lw, white[where],
-         dmin / xp.maximum(_csum(dw) / 3.0, _EPS),
-         xp.clip(_csum(icw - v["imin"][where]) / xp.maximum(_csum(icw), _EPS), 0.0, 1.0),
+         dmin / xp.maximum(sum3(dw) / 3.0, _EPS),
+         xp.clip(sum3(icw - v["imin"][where]) / xp.maximum(sum3(icw), _EPS), 0.0, 1.0),
          gate[where], g(gate, 13), g(gate, 37),
          a_eff[where] * float(gx.mean()) / lw, xp.zeros(lw.shape, like=lw) + float(share),
          xp.astype(mmax >= saturated, xp.float32), mmax,
@@ -226,7 +206,7 @@ def zone(gate: Any, measured: Any, saturated: float, side: int, bound: Any) -> A
     """
     xp = namespace(gate)
     near = _imageops.dilate(xp.astype(gate > 0, xp.float32), _k(_ZONE, side)) > 0
-    return near & (_cmax(measured) < saturated) & (bound > 0)
+    return near & (max3(measured) < saturated) & (bound > 0)
 
 
 def forward(x: Any, weights: dict[str, np.ndarray]) -> Any:
@@ -298,17 +278,12 @@ def load_weights(path: str | Path | None = None) -> dict[str, np.ndarray]:
     return _load(str(WEIGHTS_FILE if path is None else Path(path)))
 
 
-def unpolarized_specular(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
-                         axis: tuple[Any, Any, Any], measured: Any, saturated: float,
-                         weights: dict[str, np.ndarray] | None = None) -> tuple[Any, Any]:
-    """The layer less the learned unpolarized specular light, and that light in units of ``G`` (H, W).
-
-    Arguments as :func:`features`; ``weights`` from :func:`load_weights` (the shipped ones by
-    default).  Returns (H, W, 3) at most ``diffuse`` and >= 0, and (H, W) ``s`` >= 0.
-    """
-    w = load_weights() if weights is None else weights
+def stage_inputs(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
+                 axis: tuple[Any, Any, Any], measured: Any, saturated: float) -> dict[str, Any]:
+    """What the stage reads: ``bound`` (:func:`removal_bound`), ``zone`` (:func:`zone`) and ``x``
+    (:func:`features` of the zone's pixels).  Arguments as :func:`features`."""
     side = int(v["side"])
     bound = removal_bound(diffuse, v["ic"], gx, side)
     where = zone(gate, measured, saturated, side, bound)
     x = features(diffuse, v, gx, gate, a_eff, share, axis, measured, saturated, bound, where)
-    return apply(diffuse, x, bound, where, gx, w)
+    return {"x": x, "bound": bound, "zone": where}

@@ -48,15 +48,13 @@ from polcam.errors import MethodError
 from polcam.separation._clipping import declipped, fill_clipped_highlights
 from polcam.separation._diffuse_polarization import diffuse_like_share, edge_axis, radial_share
 from polcam.separation._false_polarization import without_edge_polarization
-from polcam.separation._highlight import peak_excess
+from polcam.separation._highlight import EVIDENCE_MEDIAN, peak_excess
 from polcam.separation._illuminant import SATURATED, check_efficiency, estimate_illuminant
 from polcam.separation._learned_residual import FEATURES as LEARNED_FEATURES
 from polcam.separation._learned_residual import WEIGHTS_FILE as LEARNED_WEIGHTS
 from polcam.separation._learned_residual import apply as _learned_apply
-from polcam.separation._learned_residual import features as _learned_features
 from polcam.separation._learned_residual import load_weights as _learned_weights
-from polcam.separation._learned_residual import removal_bound as _learned_bound
-from polcam.separation._learned_residual import zone as _learned_zone
+from polcam.separation._learned_residual import stage_inputs as _learned_inputs
 from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
 from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
@@ -101,9 +99,6 @@ DEFAULTS: dict[str, Any] = {
 #: which a few pixels' smoothing cancels, while a highlight's polarization is coherent over it.
 _COHERENT_PER_SIDE = 200
 _COHERENT_MIN_PX = 3.0
-#: Side of the median filter of the highlight evidence (step 5): it keeps demosaicing's one- or two-pixel
-#: overshoot at edges out of both the pixel's level and its surroundings' floor.
-_EVIDENCE_MEDIAN = 5
 #: Least light (channel sum) by which a removed share is divided: far below one 8-bit code value, so it
 #: only keeps black pixels from dividing by zero.
 _LIGHT_GUARD = 1e-6
@@ -357,15 +352,12 @@ def _learned_stage(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: A
     ``run``) and the light removed as a share of the layer's light; ``inputs`` (a dict or None)
     receives the model's inputs.
     """
-    side = int(v["side"])
-    bound = _learned_bound(diffuse, v["ic"], gx, side)
-    where = _learned_zone(gate, measured, SATURATED, side, bound)
-    x = _learned_features(diffuse, v, gx, gate, a_eff, share, axis, measured, SATURATED, bound, where)
+    read = _learned_inputs(diffuse, v, gx, gate, a_eff, share, axis, measured, SATURATED)
     if inputs is not None:
-        inputs.update(diffuse=diffuse, x=x, bound=bound, zone=where, g=gx)
+        inputs.update(read, diffuse=diffuse, g=gx)
     if not run:
         return diffuse, 0.0
-    out, _ = _learned_apply(diffuse, x, bound, where, gx, _learned_weights())
+    out, _ = _learned_apply(diffuse, read["x"], read["bound"], read["zone"], gx, _learned_weights())
     return out, float((diffuse - out).sum()) / max(float(diffuse.sum()), _LIGHT_GUARD)
 
 
@@ -495,7 +487,7 @@ def _highlight_evidence(diffuse: Any, ic: Any, gx: Any, *, window: int) -> Any:
     (:func:`polcam.separation._highlight.peak_excess`).
     """
     xp = namespace(diffuse)
-    excess = peak_excess(ic, gx, window=window, smooth=_EVIDENCE_MEDIAN)
+    excess = peak_excess(ic, gx, window=window, smooth=EVIDENCE_MEDIAN)
     return xp.maximum(diffuse, ic - excess[..., None] * gx)
 
 
