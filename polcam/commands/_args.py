@@ -32,6 +32,7 @@ __all__ = [
     "parse_option",
     "parse_options",
     "run_command",
+    "reproducing_command",
 ]
 
 
@@ -75,6 +76,20 @@ class _CommandLevel(CommandParser):
     """A command's (or sub-command's) parser: it reports its own unrecognized arguments."""
 
     _polcam_command = True
+
+
+def reproducing_command(prog: str, args: argparse.Namespace, names: Sequence[str]) -> str:
+    """The command line that repeats a parsed run: ``prog``, then ``--name value`` for each of ``names``.
+
+    Floats are written with ``%g``; an underscore in a name becomes a hyphen, as argparse reads it.
+    What a training command stores beside the weights it writes.
+    """
+    parts = [prog]
+    for name in names:
+        value = getattr(args, name)
+        parts.append(f"--{name.replace('_', '-')} {value:g}" if isinstance(value, float) else
+                     f"--{name.replace('_', '-')} {value}")
+    return " ".join(parts)
 
 
 def positive_int(text: str) -> int:

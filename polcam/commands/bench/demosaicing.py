@@ -13,6 +13,7 @@ from typing import Any
 from polcam.bench import demosaic as bench_demosaic
 from polcam.bench import demosaic_validation as validation
 from polcam.bench import lmmse_training as training
+from polcam.commands._args import reproducing_command
 from polcam.demosaicing.lmmse import BLOCK, WEIGHTS_FILE
 from polcam.synth.photos import TRAINING_PHOTOS
 
@@ -88,11 +89,10 @@ def run_training(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     weights = training.train(scenes=args.scenes, size=args.size, seed=args.seed, ridge=args.ridge,
                              moments=args.moments, patterns=args.patterns, photos=args.photos)
-    options = (f"--scenes {args.scenes} --size {args.size} --seed {args.seed} --ridge {args.ridge:g} "
-               f"--patterns {args.patterns} --photos {args.photos} --moments {args.moments}")
     info = {"scenes": args.scenes, "size": args.size, "seed": args.seed, "ridge": args.ridge,
             "patterns": args.patterns, "photos": args.photos, "moments": args.moments,
-            "command": f"polcam bench train-lmmse {options}",
+            "command": reproducing_command("polcam bench train-lmmse", args, ("scenes", "size", "seed", "ridge",
+                                                                              "patterns", "photos", "moments")),
             "data": "polcam's own rendered scenes (polcam.bench.lmmse_training.training_stack)"
                     + (f" and crops of the public-domain / CC0 photographs {', '.join(TRAINING_PHOTOS)} of "
                        "scikit-image with simulated polarization (polcam.synth.photos)" if args.photos

@@ -13,6 +13,7 @@ from typing import Any
 
 from polcam._jsonable import jsonable
 from polcam.bench import default_rule, quality, real, relit, residual_training, sihr, stability
+from polcam.commands._args import reproducing_command
 from polcam.commands.bench import speed
 from polcam.errors import FrameReadError, MethodError, PolcamError
 from polcam.io.atomic import atomic_write
@@ -303,9 +304,9 @@ def _run_train_residual(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     weights = rt.train(args.scenes, size=args.size, start=args.start, max_samples=args.samples,
                        iterations=args.iterations, l2=args.l2, seed=args.seed)
-    options = (f"--scenes {args.scenes} --size {args.size} --start {args.start} --samples {args.samples} "
-               f"--iterations {args.iterations} --l2 {args.l2:g} --seed {args.seed}")
-    info = {"command": f"polcam bench train-residual {options}", "hidden": list(rt.DEFAULT_HIDDEN),
+    command = reproducing_command("polcam bench train-residual", args,
+                                  ("scenes", "size", "start", "samples", "iterations", "l2", "seed"))
+    info = {"command": command, "hidden": list(rt.DEFAULT_HIDDEN),
             "data": "the randomized scene family's training seeds (polcam.synth.family.training_seeds), albedo "
                     "from public-domain / CC0 photographs of scikit-image; no other data"}
     rt.save_weights(weights, args.out, info=info)
