@@ -15,6 +15,7 @@ import pytest
 import polcam
 from polcam.errors import MethodError
 from polcam.polarimetry import synthesize
+from polcam.separation import polarized_residual as pres
 
 #: The optional residual steps, unbounded (module docstring).
 _STEPS = {"unpolarized": "measured", "evidence": False, "edge_polarization": False, "edge_fit": 0}
@@ -53,6 +54,25 @@ def test_planted_polarized_specular_is_removed_exactly():
     assert np.max(np.abs(res.diffuse - d)) < 2e-3
     # the imin diffuse is exact here too; a fully polarized specular needs no prior
     assert np.max(np.abs(polcam.separate(st, method="imin").diffuse - d)) < 1e-6
+
+
+def test_a_highlight_that_dominates_its_pixels_is_removed_in_each_channel(monkeypatch):
+    # a fully polarized highlight up to ten times the dark body's light, its colour 10 % off G's in red
+    # and blue (as each channel's demosaicing error of a highlight leaves it): where polarization removes
+    # most of a pixel's light, each channel's own removal is kept, so no coloured rest of the highlight
+    # stays in the layer (step 4)
+    h, w = 48, 48
+    d = np.broadcast_to(np.array([0.06, 0.05, 0.04]), (h, w, 3)).copy()
+    spec = 0.6 * _bump(h, w, 24, 24, 5)
+    st = _stack(d, spec, (1.1, 1.0, 0.9), rho_s=1.0, phi_s=0.7)
+    opts = dict(method="polarized-residual", illuminant=(1, 1, 1), unpolarized="none", edge_polarization=False,
+                edge_fit=0)
+    core = spec > 0.5 * spec.max()                               # over 80 % of the light is removed there
+    assert np.abs(polcam.separate(st, **opts).diffuse[core] - d[core]).max() < 2e-3
+    # one multiple of G alone (the ramp moved out of reach) leaves the red excess, >= 0.1 of the highlight
+    monkeypatch.setattr(pres, "_PER_CHANNEL_SHARE", (2.0, 3.0))
+    one = polcam.separate(st, **opts).diffuse
+    assert (one - d)[core][:, 0].min() > 0.1 * 0.3 - 1e-3
 
 
 def test_white_unpolarized_object_is_kept():
