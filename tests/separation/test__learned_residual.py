@@ -87,3 +87,21 @@ def test_the_stage_brings_glossy_validation_scenes_closer_to_the_truth() -> None
 
 def test_kernels_scale_with_the_image() -> None:
     assert lr._k(9, lr.TRAIN_SIDE) == 9 and lr._k(9, 4 * lr.TRAIN_SIDE) == 37 and lr._k(1, 64) == 3
+
+
+def test_the_bound_is_the_rise_above_the_surroundings_and_never_more_than_the_layer() -> None:
+    """``removal_bound`` in closed form: a narrow peak is bounded by its rise above the floor of its
+    surroundings, never beyond what the layer holds in its least channel; a highlight as broad as the
+    image does not rise above its surroundings and is not bounded open."""
+    g = np.array([1.1, 1.0, 0.9], np.float32)
+    h, w = 64, 64
+    diffuse = np.broadcast_to(0.3 * g, (h, w, 3)).astype(np.float32).copy()
+    # a 7 x 7 peak: wider than the 5 x 5 median, inside the window (0.12 of the side)
+    peak = diffuse.copy()
+    peak[28:35, 28:35] += 0.25 * g
+    b = np.asarray(lr.removal_bound(peak, peak, g, w))
+    assert b[31, 31] == pytest.approx(0.25, rel=1e-4) and b[10, 10] == 0.0
+    thin = diffuse * 0.1                                    # a layer that holds less than the rise
+    assert np.asarray(lr.removal_bound(thin, peak, g, w))[31, 31] == pytest.approx(0.03, rel=1e-4)
+    flat = diffuse + 0.2 * g                                # a flat "highlight" over the whole image
+    np.testing.assert_allclose(np.asarray(lr.removal_bound(diffuse, flat, g, w)), 0.0, atol=1e-6)
