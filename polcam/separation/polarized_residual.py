@@ -19,7 +19,8 @@ validation sweeps behind every choice):
 * The unpolarized part ``(1 - rho_s) s G`` of the specular light: by default
   (``unpolarized="learned"``) a small model trained on the randomized family's
   training scenes reads it from local measures, near coherent polarized light,
-  off clipped pixels and never beyond the pixel's rise above its surroundings
+  off clipped pixels and never beyond the pixel's rise above its surroundings or
+  the polarized light seen at it
   (:mod:`polcam.separation._learned_residual`); ``"none"`` leaves it in the
   diffuse; ``"measured"`` runs the steps of :mod:`polcam.separation._residual`
   (k from coloured highlights, a colour prior).
@@ -344,21 +345,24 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
     diffuse = _within_measured(diffuse, measured, gx)
     if opts["unpolarized"] == "learned" or (inputs is not None and opts["unpolarized"] == "none"):
         diffuse, info["learned_specular"] = _learned_stage(diffuse, v, gx, gate, a_eff, share, axis, measured,
-                                                           run=opts["unpolarized"] == "learned", inputs=inputs)
+                                                           run=opts["unpolarized"] == "learned", inputs=inputs,
+                                                           rise_only=bool(opts["evidence"]))
     return xp.astype(diffuse, xp.float32), info
 
 
 def _learned_stage(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
                    axis: tuple[Any, Any, Any], measured: Any, *, run: bool,
-                   inputs: dict[str, Any] | None) -> tuple[Any, float]:
+                   inputs: dict[str, Any] | None, rise_only: bool = False) -> tuple[Any, float]:
     """Step 7 (``unpolarized="learned"``): the unpolarized specular light a small model reads, removed along ``G``.
 
     :mod:`polcam.separation._learned_residual`: near coherent polarized light, off clipped pixels,
-    and at most the pixel's rise above its surroundings.  Returns the layer (unchanged unless
+    and at most the pixel's rise above its surroundings or its polarized light
+    (:data:`polcam.separation._learned_residual.POLARIZED_RATIO` times it; the rise alone with
+    ``rise_only``, as ``evidence=True`` asks).  Returns the layer (unchanged unless
     ``run``) and the light removed as a share of the layer's light; ``inputs`` (a dict or None)
     receives the model's inputs.
     """
-    read = _learned_inputs(diffuse, v, gx, gate, a_eff, share, axis, measured, SATURATED)
+    read = _learned_inputs(diffuse, v, gx, gate, a_eff, share, axis, measured, SATURATED, rise_only=rise_only)
     if inputs is not None:
         inputs.update(read, diffuse=diffuse, g=gx)
     if not run:

@@ -89,10 +89,10 @@ def test_kernels_scale_with_the_image() -> None:
     assert lr._k(9, lr.TRAIN_SIDE) == 9 and lr._k(9, 4 * lr.TRAIN_SIDE) == 37 and lr._k(1, 64) == 3
 
 
-def test_the_bound_is_the_rise_above_the_surroundings_and_never_more_than_the_layer() -> None:
+def test_the_bound_is_the_rise_or_the_polarized_light_and_never_more_than_the_layer() -> None:
     """``removal_bound`` in closed form: a narrow peak is bounded by its rise above the floor of its
     surroundings, never beyond what the layer holds in its least channel; a highlight as broad as the
-    image does not rise above its surroundings and is not bounded open."""
+    image does not rise above its surroundings, and only its polarized light seen bounds it."""
     g = np.array([1.1, 1.0, 0.9], np.float32)
     h, w = 64, 64
     diffuse = np.broadcast_to(0.3 * g, (h, w, 3)).astype(np.float32).copy()
@@ -105,3 +105,10 @@ def test_the_bound_is_the_rise_above_the_surroundings_and_never_more_than_the_la
     assert np.asarray(lr.removal_bound(thin, peak, g, w))[31, 31] == pytest.approx(0.03, rel=1e-4)
     flat = diffuse + 0.2 * g                                # a flat "highlight" over the whole image
     np.testing.assert_allclose(np.asarray(lr.removal_bound(diffuse, flat, g, w)), 0.0, atol=1e-6)
+    # where its polarization is seen, the polarized light bounds it: POLARIZED_RATIO times it
+    polarized = np.zeros((h, w), np.float32)
+    polarized[:, 32:] = 0.1
+    b = np.asarray(lr.removal_bound(diffuse, flat, g, w, polarized))
+    np.testing.assert_allclose(b[:, :32], 0.0, atol=1e-6)
+    np.testing.assert_allclose(b[:, 32:], lr.POLARIZED_RATIO * 0.1, rtol=1e-5)
+    assert np.asarray(lr.removal_bound(thin, flat, g, w, polarized))[5, 40] == pytest.approx(0.03, rel=1e-4)

@@ -313,7 +313,8 @@ _UNIFORM_POLARIZED_DIFFUSE = pytest.mark.parametrize("opts", [
     {"evidence": True},
     pytest.param({}, marks=pytest.mark.xfail(strict=True, reason=(
         "default options: the part of a polarized diffuse light common to the three channels in G's "
-        "colour (rho_d min_c D_c) is removed where no edge gives it back and no evidence bound holds it"))),
+        "colour (rho_d min_c D_c) is removed where no edge gives it back and no evidence bound holds it; "
+        "the learned stage, whose bound admits the polarized light seen at a pixel, takes a little more"))),
 ])
 
 
