@@ -352,7 +352,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
 
 def _learned_stage(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
                    axis: tuple[Any, Any, Any], measured: Any, *, run: bool,
-                   inputs: dict[str, Any] | None, rise_only: bool = False) -> tuple[Any, float]:
+                   inputs: dict[str, Any] | None, rise_only: bool) -> tuple[Any, float]:
     """Step 7 (``unpolarized="learned"``): the unpolarized specular light a small model reads, removed along ``G``.
 
     :mod:`polcam.separation._learned_residual`: near coherent polarized light, off clipped pixels,

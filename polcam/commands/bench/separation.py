@@ -296,9 +296,9 @@ def _add_train_residual(bsub: Any) -> None:
 def _run_train_residual(args: argparse.Namespace) -> int:
     """Run a parsed ``polcam bench train-residual``: train, then write the weights and how they were made."""
     rt = residual_training
-    for name in ("scenes", "size", "samples", "iterations"):
-        if getattr(args, name) < (32 if name == "size" else 1):
-            args.bench_parser.error(f"--{name} {getattr(args, name)}: expected a positive integer (size >= 32)")
+    for name, least in (("scenes", 1), ("size", 32), ("samples", 1), ("iterations", 1)):
+        if getattr(args, name) < least:
+            args.bench_parser.error(f"--{name} {getattr(args, name)}: expected an integer of at least {least}")
     if args.start < 0 or args.l2 < 0:
         args.bench_parser.error("--start and --l2: expected non-negative numbers")
     t0 = time.perf_counter()
