@@ -13,6 +13,7 @@ import numpy as np
 
 from polcam import _imageops
 from polcam._xp import namespace
+from polcam.separation._common import max3, sum3
 from polcam.separation._illuminant import SATURATED
 
 __all__ = ["declipped", "fill_clipped_highlights", "smooth_fill"]
@@ -25,6 +26,14 @@ _RING_RAMP = 0.4
 #: Chromaticity spread (intensity-weighted RMS) of a clipped region's border under which the border is
 #: one material, and so says what colour is under the clipping; none is filled from twice it.
 _ONE_MATERIAL = 0.02
+
+
+def _channels(a: Any, how: str) -> Any:
+    """Largest (``how="max"``) or sum (``"sum"``) over the last axis of (..., C): elementwise for C = 3."""
+    if a.shape[-1] == 3:
+        return max3(a) if how == "max" else sum3(a)
+    xp = namespace(a)
+    return xp.amax(a, axis=-1) if how == "max" else a.sum(axis=-1)
 
 
 def declipped(stack: Any) -> Any:
@@ -57,7 +66,7 @@ def declipped(stack: Any) -> Any:
         return s
     # pixels with a channel clipped at three or four angles are left whole: that channel is not
     # measured, and the clipped highlights' fill (from the neighbours) handles them
-    n[(n >= 3).any(axis=-1)] = 0
+    n[_channels(n, "max") >= 3] = 0
     # one clipped sample (sparse: only those pixels and channels are touched)
     yy, xx, cc = xp.nonzero(n == 1)
     if yy.shape[0]:
@@ -70,11 +79,11 @@ def declipped(stack: Any) -> Any:
     yy, xx, cc = xp.nonzero(n == 2)
     if yy.shape[0]:
         free = ~clipped.any(axis=0)                                # (H, W, C) channels with no clipped sample
-        qq = (0.5 * (stack[0] - stack[2]) * free).sum(axis=-1)
-        uu = (0.5 * (stack[1] - stack[3]) * free).sum(axis=-1)
+        qq = _channels(0.5 * (stack[0] - stack[2]) * free, "sum")
+        uu = _channels(0.5 * (stack[1] - stack[3]) * free, "sum")
         # where no channel of the pixel is free, the AoLP of the free channels around it: the nearest of
         # the 7 x 7, 15 x 15 and 31 x 31 neighbourhoods that has any (a highlight's AoLP varies smoothly)
-        have = free.any(axis=-1)
+        have = _channels(free, "max")
         for side in (7, 15, 31):
             if bool(have[yy, xx].all()):
                 break
@@ -195,7 +204,7 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
     pixel is clipped.
     """
     xp = namespace(diffuse)
-    sat_px = xp.amax(measured, axis=-1) >= SATURATED       # a channel clipped at all four angles
+    sat_px = max3(measured) >= SATURATED       # a channel clipped at all four angles
     n_sat = int(sat_px.sum())
     stats = {"clipped_pixels": n_sat, "clipped_filled": 0, "clipped_as_measured": n_sat}
     if n_sat == 0:

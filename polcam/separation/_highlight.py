@@ -11,6 +11,7 @@ from typing import Any
 
 from polcam import _imageops
 from polcam._xp import namespace
+from polcam.separation._common import min3
 
 __all__ = ["EVIDENCE_MEDIAN", "peak_excess"]
 
@@ -55,5 +56,5 @@ def peak_excess(ic: Any, g: Any, *, window: int, smooth: int) -> Any:
     xp = namespace(ic)
     base = _imageops.median(ic, smooth)
     floor = _imageops.dilate(_imageops.erode(base, window), window)
-    excess = xp.amin((xp.minimum(ic, base) - floor) / g, axis=-1)
+    excess = min3((xp.minimum(ic, base) - floor) / g)
     return xp.astype(xp.maximum(excess, 0.0), xp.float32)

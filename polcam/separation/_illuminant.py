@@ -41,6 +41,7 @@ import numpy as np
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
+from polcam.separation._common import max3, sum3
 
 __all__ = ["IlluminantEstimate", "polarized_colour", "highlight_colour", "estimate_illuminant", "projected_chromaticity"]
 
@@ -101,13 +102,25 @@ def _checked_stack(stack: Any) -> Any:
     return s
 
 
-def _parts(stack: Any) -> tuple[Any, Any, Any, Any]:
+class _Parts(NamedTuple):
+    """What the estimates share, computed once from a (4, H, W, 3) float32 stack (numpy or torch)."""
+
+    v0: Any        # (H, W, 3) I0 - I90 (S1)
+    v1: Any        # (H, W, 3) I45 - I135 (S2)
+    ic: Any        # (H, W, 3) mean of the four images
+    isv: Any       # (H, W, 3) polarized amplitude, 0.5 |(S1, S2)|
+    unsat: Any     # (H, W) bool: no sample at SATURATED or above
+
+
+def _parts(stack: Any) -> _Parts:
     s = _checked_stack(stack)
     xp = namespace(s)
-    ic = s.mean(axis=0)
-    isv = 0.5 * xp.hypot(s[0] - s[2], s[1] - s[3])
-    unsat = xp.amax(xp.amax(s, axis=0), axis=-1) < SATURATED
-    return s, ic, isv, unsat
+    v0 = s[0] - s[2]
+    v1 = s[1] - s[3]
+    ic = 0.25 * (s[0] + s[1] + s[2] + s[3])
+    isv = 0.5 * xp.hypot(v0, v1)
+    unsat = max3(xp.amax(s, axis=0)) < SATURATED
+    return _Parts(v0, v1, ic, isv, unsat)
 
 
 def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None) -> np.ndarray:
@@ -152,10 +165,15 @@ def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:
     numpy.ndarray
         (3,) float64 with mean 1, or NaNs when no pixel qualifies.
     """
-    _, ic, isv, unsat = _parts(stack)
+    return _highlight_colour(_parts(stack), share)
+
+
+def _highlight_colour(parts: _Parts, share: float) -> np.ndarray:
+    """:func:`highlight_colour` from the stack's shared parts."""
+    ic, isv, unsat = parts.ic, parts.isv, parts.unsat
     xp = namespace(ic)
-    lum = ic.mean(axis=-1)
-    dolp = isv.mean(axis=-1) / xp.maximum(lum, 1e-6)
+    lum = sum3(ic) / 3.0
+    dolp = (sum3(isv) / 3.0) / xp.maximum(lum, 1e-6)
     ok = unsat & (lum > 0)
     if bool(ok.any()):
         ok &= lum > 0.05 * xp.quantile(lum, 0.99)
@@ -198,9 +216,10 @@ def estimate_illuminant(stack: np.ndarray, *, efficiency: object = None,
         eff = check_efficiency(efficiency)
         pol = polarized_colour(stack, efficiency=eff)
         return IlluminantEstimate(pol, eff / eff.max(), "calibration", pol, highlight_colour(stack))
-    terms, ok = _projection_terms(_checked_stack(stack), None, OWN_COLOUR)
+    parts = _parts(stack)
+    terms, ok = _projection_terms(parts, None, OWN_COLOUR)
     pol = _unit_mean(_total_chromaticity(terms, ok, 5.0))
-    hi = highlight_colour(stack)
+    hi = _highlight_colour(parts, 0.002)
     if _white_distance(terms, ok) < WHITE_Z:
         # the polarized light's colour is within its own noise of white: no evidence against the
         # camera's white balance (the weak polarization of near-normal specular light, a small image)
@@ -258,39 +277,49 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
     numpy.ndarray
         (3,) chromaticity summing to 1 (white = 1/3 each).
     """
-    terms, ok = _projection_terms(stack, efficiency, own_colour)
+    terms, ok = _projection_terms(_parts(stack), efficiency, own_colour)
     return _total_chromaticity(terms, ok, significance)
 
 
-def _projection_terms(stack: Any, efficiency: Any, own_colour: float | None) -> tuple[Any, Any]:
-    """Per-pixel terms ``v_c(p) . n(p)`` ((H, W, 3) float64) and the unsaturated pixels ((H, W) bool).
+def _projection_terms(parts: _Parts, efficiency: Any, own_colour: float | None) -> tuple[Any, Any]:
+    """Per-pixel terms ``v_c(p) . n(p)`` ((H, W, 3) float32) and the unsaturated pixels ((H, W) bool).
 
-    :func:`projected_chromaticity` gives the formula; numpy or torch in, the same out.
+    :func:`projected_chromaticity` gives the formula; numpy or torch in, the same out.  The terms
+    are float32 (a product of two float32 differences); every sum over pixels is taken in float64.
     """
-    xp = namespace(stack)
-    x = xp.astype(stack, xp.float64)
-    v = xp.stack([x[0] - x[2], x[1] - x[3]], axis=-1)          # (H, W, 3, 2)
+    xp = namespace(parts.v0)
+    v0, v1 = parts.v0, parts.v1
     if efficiency is not None:
-        v = v / xp.asarray(np.asarray(efficiency, np.float64).reshape(3, 1), like=v)
-    vs = xp.sum(v, axis=2)                                      # (H, W, 2)
-    h, w = vs.shape[:2]
-    p = xp.pad_hw(vs, 1, 0.0)                                   # zeros outside
-    box = sum(p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
-    terms = xp.einsum("hwcj,hwj->hwc", v, box - vs)             # (H, W, 3)
-    ok = xp.amax(xp.amax(x, axis=0), axis=-1) < SATURATED
+        e = xp.asarray(np.asarray(efficiency, np.float32).reshape(3), like=v0)
+        v0 = v0 / e
+        v1 = v1 / e
+    terms = v0 * _neighbours(v0[..., 0] + v0[..., 1] + v0[..., 2])[..., None]
+    terms = terms + v1 * _neighbours(v1[..., 0] + v1[..., 1] + v1[..., 2])[..., None]
+    ok = parts.unsat
     if own_colour is not None:
-        terms, ok = _own_colour_weighted(terms, x, ok, float(own_colour))
+        terms, ok = _own_colour_weighted(terms, parts, ok, float(own_colour))
     return terms, ok
+
+
+def _neighbours(a: Any) -> Any:
+    """Sum of each pixel's 8 neighbours of an (H, W) array, zero outside the image."""
+    xp = namespace(a)
+    h, w = a.shape
+    p = xp.pad_hw(a, 1, 0.0)
+    out = p[0:h, 0:w] + p[0:h, 1:w + 1]
+    for dy, dx in ((0, 2), (1, 0), (1, 2), (2, 0), (2, 1), (2, 2)):
+        out = out + p[dy:dy + h, dx:dx + w]
+    return out
 
 
 def _total_chromaticity(terms: Any, ok: Any, significance: float) -> np.ndarray:
     """Chromaticity of the summed terms over ``ok``; white when not significant (projected_chromaticity)."""
     xp = namespace(terms)
-    t = terms[ok]
+    t = xp.astype(terms[ok], xp.float64)
     if t.shape[0] == 0:
         return np.full(3, 1 / 3)
     total = xp.to_numpy(xp.sum(t, axis=0))
-    per_pixel = xp.sum(t, axis=1)
+    per_pixel = t[:, 0] + t[:, 1] + t[:, 2]
     noise = float(np.sqrt(float((per_pixel * per_pixel).sum())))
     if total.sum() <= significance * noise or np.any(total <= 0):
         return np.full(3, 1 / 3)
@@ -338,21 +367,21 @@ def _white_distance(terms: np.ndarray, ok: np.ndarray, block: int | None = None)
     return float(np.sqrt(d @ np.linalg.solve(cov, d)))
 
 
-def _own_colour_weighted(terms: Any, x: Any, ok: Any, dist: float) -> tuple[Any, Any]:
+def _own_colour_weighted(terms: Any, parts: _Parts, ok: Any, dist: float) -> tuple[Any, Any]:
     """The projection terms weighted against the surface's own colour (``projected_chromaticity``).
 
-    ``terms`` (H, W, 3) float64, ``x`` the (4, H, W, 3) float64 stack and ``ok`` (H, W) bool, numpy
-    or torch (the result is of the same kind).
+    ``terms`` (H, W, 3) float32, ``parts`` the stack's shared parts and ``ok`` (H, W) bool, numpy or
+    torch (the result is of the same kind).
     """
     xp = namespace(terms)
-    ic = x.mean(axis=0)
-    imin = xp.maximum(ic - 0.5 * xp.hypot(x[0] - x[2], x[1] - x[3]), 0.0)
-    e = imin / xp.maximum(imin.sum(axis=-1, keepdims=True), 1e-12)
-    tb = xp.stack([_imageops.box(xp.astype(terms[..., c], xp.float64), 5) for c in range(3)], axis=-1)
-    ts = tb.sum(axis=-1, keepdims=True)
+    imin = xp.maximum(parts.ic - parts.isv, 0.0)
+    e = imin / xp.maximum(sum3(imin)[..., None], 1e-12)
+    tb = _imageops.box(terms, 5)
+    ts = sum3(tb)[..., None]
     big = abs(ts) > 1e-12
     chroma = xp.where(big, tb / xp.where(big, ts, 1.0), 1.0 / 3.0)
-    w = xp.clip(xp.vnorm(chroma - e, axis=-1) / dist, 0.0, 1.0)
-    if float(w[ok].sum()) < 0.05 * max(int(ok.sum()), 1):
+    d = chroma - e
+    w = xp.clip(xp.sqrt(sum3(d * d)) / dist, 0.0, 1.0)
+    if float(xp.astype(w[ok], xp.float64).sum()) < 0.05 * max(int(ok.sum()), 1):
         return terms, ok
     return terms * w[..., None], ok

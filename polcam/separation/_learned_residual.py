@@ -180,35 +180,41 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     nn = xp.maximum(xp.hypot(v["qq"], v["uu"]), 1e-6)
     along = (v["qq"] * c2 + v["uu"] * s2) / nn * coh
 
+    idx = xp.nonzero(where.reshape(-1))[0]                   # gathers by index: a boolean mask is slower
+
+    def at(a: Any) -> Any:
+        """``a[where]`` for an (H, W) or (H, W, 3) array."""
+        return xp.take(a.reshape((-1,) + tuple(a.shape[2:])), idx, 0)
+
     def g(a: Any, px: int) -> Any:
-        return _blur(a, px, side)[where]
+        return at(_blur(a, px, side))
 
     # the pixel's own measures, where wanted
-    lw = light[where]
-    dw = diffuse[where] / gx
+    lw = at(light)
+    dw = at(diffuse) / gx
     dmin = min3(dw)
-    icw = ic[where]
-    qs = sum3(v["q"][where] / gx)
-    us = sum3(v["u"][where] / gx)
-    c2w, s2w = c2[where], s2[where]
-    mmax = max3(measured[where])
-    f = [removed[where] / lw, xp.maximum(dmin, 0.0) / lw, white[where],
+    icw = at(ic)
+    qs = sum3(at(v["q"]) / gx)
+    us = sum3(at(v["u"]) / gx)
+    c2w, s2w = at(c2), at(s2)
+    mmax = max3(at(measured))
+    f = [at(removed) / lw, xp.maximum(dmin, 0.0) / lw, at(white),
          dmin / xp.maximum(sum3(dw) / 3.0, _EPS),
-         xp.clip(sum3(icw - v["imin"][where]) / xp.maximum(sum3(icw), _EPS), 0.0, 1.0),
-         gate[where], g(gate, 13), g(gate, 37),
-         a_eff[where] * float(gx.mean()) / lw, xp.zeros(lw.shape, like=lw) + float(share),
+         xp.clip(sum3(icw - at(v["imin"])) / xp.maximum(sum3(icw), _EPS), 0.0, 1.0),
+         at(gate), g(gate, 13), g(gate, 37),
+         at(a_eff) * float(gx.mean()) / lw, xp.zeros(lw.shape, like=lw) + float(share),
          xp.astype(mmax >= saturated, xp.float32), mmax,
-         along[where], (qs * c2w + us * s2w) / xp.maximum(xp.hypot(qs, us), 1e-6), coh[where], nn[where] / 3.0 / lw,
+         at(along), (qs * c2w + us * s2w) / xp.maximum(xp.hypot(qs, us), 1e-6), at(coh), at(nn) / 3.0 / lw,
          g(along * gate, 19), g(along * gate, 49), g(along, 49)]
     for px in (9, 25, 61):
         f.append(xp.log(lw / xp.maximum(g(light, px), _EPS)))
         f.append(xp.log(xp.maximum(g(removed, px), 0.0) / lw + 1e-3))
-        f.append(g(white, px) - white[where])
+        f.append(g(white, px) - at(white))
     for px in (5, 15):
         k = _k(px, side)
-        f.append(xp.log(lw / xp.maximum(_imageops.dilate(light, k)[where], _EPS)))
-        f.append(xp.log(xp.maximum(_imageops.erode(light, k)[where], _EPS) / lw))
-    f.append(bound[where] / lw)
+        f.append(xp.log(lw / xp.maximum(at(_imageops.dilate(light, k)), _EPS)))
+        f.append(xp.log(xp.maximum(at(_imageops.erode(light, k)), _EPS) / lw))
+    f.append(at(bound) / lw)
     # (F, N) rows copied whole, then seen as (N, F): matrix products read the transpose in place
     return xp.stack([xp.astype(a, xp.float32) for a in f], axis=0).T
 
@@ -261,8 +267,11 @@ def apply(diffuse: Any, x: Any, bound: Any, where: Any, gx: Any, weights: dict[s
     ``x`` holds the features of the ``where`` pixels ((N, F), :func:`features` given ``where``).
     """
     xp = namespace(diffuse)
-    s = xp.zeros(bound.shape, like=bound)
-    s[where] = bound[where] * xp.clip(forward(x, weights), 0.0, 1.0)
+    idx = xp.nonzero(where.reshape(-1))[0]
+    flat = bound.reshape(-1)
+    s = xp.zeros(flat.shape, like=bound)
+    s[idx] = xp.take(flat, idx, 0) * xp.clip(forward(x, weights), 0.0, 1.0)
+    s = s.reshape(bound.shape)
     return xp.maximum(diffuse - s[..., None] * gx, 0.0), s
 
 

@@ -54,38 +54,39 @@ def stokes_noise(stack: Any, ic: Any) -> Any:
         lev = i2[..., c]
         hp_q = abs(q[..., c] - _imageops.box(q[..., c], 3))
         hp_u = abs(u[..., c] - _imageops.box(u[..., c], 3))
-        sig_r = _binned_spread(lev, abs(r[..., c]) / np.sqrt(2.0), valid[..., c])
-        sig_hp = _binned_spread(lev, np.sqrt(9.0 / 8.0) * 0.5 * (hp_q + hp_u), valid[..., c])
+        sig_r, sig_hp = _binned_spread(lev, (abs(r[..., c]) / np.sqrt(2.0),
+                                             np.sqrt(9.0 / 8.0) * 0.5 * (hp_q + hp_u)), valid[..., c])
         out.append(xp.minimum(sig_r, sig_hp))
     return xp.stack(out, axis=-1).reshape(shape)
 
 
-def _binned_spread(level: Any, absres: Any, valid: Any, bins: int = 8) -> Any:
-    """Robust deviation of a zero-mean residual as a non-decreasing function of ``level``.
+def _binned_spread(level: Any, absres: tuple[Any, ...], valid: Any, bins: int = 8) -> list[Any]:
+    """Robust deviation of zero-mean residuals as non-decreasing functions of ``level``.
 
-    ``level``, ``absres`` (the residual's absolute value) and ``valid`` (which pixels to learn
-    from) are (H, W); the result, (H, W) float32, is defined at every pixel.  The eight bins'
-    statistics come from a regular subsample of at most 500 000 values, taken on the host
-    (a torch array's subsample is copied there); the interpolation runs on the array's device.
+    ``level``, each of ``absres`` (a residual's absolute value) and ``valid`` (which pixels to learn
+    from) are (H, W); each result, (H, W) float32, is defined at every pixel.  The eight bins (of
+    ``level``, shared by the residuals) and their statistics come from a regular subsample of at most
+    500 000 values, taken on the host (a torch array's subsample is copied there); the interpolation
+    runs on the array's device.
     """
     xp = namespace(level)
     lev = level[valid]
-    res = absres[valid]
     if lev.shape[0] == 0:
-        return xp.zeros(level.shape, like=level, dtype=xp.float32)
+        return [xp.zeros(level.shape, like=level, dtype=xp.float32) for _ in absres]
     step = max(1, lev.shape[0] // 250_000)             # a regular subsample is plenty for eight medians
-    lev, res = xp.to_numpy(lev[::step]), xp.to_numpy(res[::step])
+    lev = xp.to_numpy(lev[::step])
     edges = np.quantile(lev, np.linspace(0, 1, bins + 1))
     idx = np.clip(np.searchsorted(edges, lev, side="right") - 1, 0, bins - 1)
-    centres, sig = [], []
-    for b in range(bins):
-        m = idx == b
-        if m.sum() >= 50:
-            centres.append(float(np.median(lev[m])))
-            sig.append(1.4826 * float(np.median(res[m])))
-    if not centres:
-        return xp.zeros(level.shape, like=level, dtype=xp.float32)
-    return xp.astype(xp.interp(level, centres, np.maximum.accumulate(np.asarray(sig))), xp.float32)
+    members = [m for m in (idx == b for b in range(bins)) if m.sum() >= 50]
+    if not members:
+        return [xp.zeros(level.shape, like=level, dtype=xp.float32) for _ in absres]
+    centres = [float(np.median(lev[m])) for m in members]
+    out = []
+    for a in absres:
+        res = xp.to_numpy(a[valid][::step])
+        sig = np.maximum.accumulate(np.asarray([1.4826 * float(np.median(res[m])) for m in members]))
+        out.append(xp.astype(xp.interp(level, centres, sig), xp.float32))
+    return out
 
 
 def _garrote(x2: Any, var: Any) -> Any:

@@ -47,6 +47,7 @@ from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.separation._clipping import declipped, fill_clipped_highlights
+from polcam.separation._common import max3, min3, sum3
 from polcam.separation._diffuse_polarization import diffuse_like_share, edge_axis, radial_share
 from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import EVIDENCE_MEDIAN, peak_excess
@@ -308,7 +309,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
     gx = xp.asarray(g, like=s)                              # the same (3,) float32 where the stack is
     v = _polarization_minimum(s, gx, eff, opts)
     ic, imin = v["ic"], v["imin"]
-    lum = ic.mean(axis=-1)
+    lum = sum3(ic) / 3.0
     if opts["unpolarized"] == "measured":
         v.update(s=s, g=g, gx=gx, measured=measured, clipped_any=clipped_any)
         diffuse, extra = residual_steps(v, opts, keep)
@@ -431,8 +432,8 @@ def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]
     k_small = _coherent_kernel(side)
     qs = _imageops.gaussian(q, k_small)
     us = _imageops.gaussian(u, k_small)
-    qq = (qs / gx).sum(axis=-1)
-    uu = (us / gx).sum(axis=-1)
+    qq = sum3(qs / gx)
+    uu = sum3(us / gx)
     nn = xp.hypot(qq, uu)
     safe = nn > 0
     c2 = xp.where(safe, qq / xp.where(safe, nn, 1.0), 1.0)[..., None]
@@ -489,12 +490,12 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     """
     xp = namespace(diffuse)
     removed = ic - diffuse
-    a_min = xp.maximum(xp.amin(removed / gx, axis=-1), 0.0)
-    a_g = (removed * gx).sum(axis=-1) / float((gx * gx).sum())
+    a_min = xp.maximum(min3(removed / gx), 0.0)
+    a_g = sum3(removed * gx) / float((gx * gx).sum())
     a = a_min + coherent * (1.0 - weight) * xp.maximum(a_g - a_min, 0.0)
     one = xp.maximum(ic - a[..., None] * gx, 0.0)
     lo, hi = _PER_CHANNEL_SHARE
-    lost = xp.maximum(removed, 0.0).sum(axis=-1) / xp.maximum(ic.sum(axis=-1), _LIGHT_GUARD)
+    lost = sum3(xp.maximum(removed, 0.0)) / xp.maximum(sum3(ic), _LIGHT_GUARD)
     beta = xp.clip((lost - lo) / (hi - lo), 0.0, 1.0)[..., None]
     return one + beta * (diffuse - one)
 
@@ -521,8 +522,8 @@ def _clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, gx: Any
     xp = namespace(diffuse)
     light = None
     if removed_share:
-        light = ic.sum(axis=-1)
-        share = (ic - diffuse).sum(axis=-1) / xp.maximum(light, _LIGHT_GUARD)
+        light = sum3(ic)
+        share = sum3(ic - diffuse) / xp.maximum(light, _LIGHT_GUARD)
         spec = xp.clip((share - _HIGHLIGHT_BORDER) / _HIGHLIGHT_BORDER + 0.5, 0.0, 1.0)
     return fill_clipped_highlights(diffuse, measured, spec, gx, light)
 
@@ -534,7 +535,7 @@ def _within_measured(diffuse: Any, measured: Any, gx: Any) -> Any:
     under the measurement, then clipped to ``[0, measured]``.
     """
     xp = namespace(diffuse)
-    over = xp.amax((diffuse - measured) / gx, axis=-1)
+    over = max3((diffuse - measured) / gx)
     return xp.clip(diffuse - xp.maximum(over, 0.0)[..., None] * gx, 0.0, measured)
 
 

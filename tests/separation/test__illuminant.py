@@ -142,14 +142,14 @@ def _weak_highlights(gamma, seed, *, rho=0.08, sigma=0.004):
 def test_white_distance_is_in_standard_errors():
     # under white light the polarized colour's distance from white, in its estimated standard
     # errors, is a chi with 2 degrees of freedom: E[z^2] = 2, P(z > 3) = 1.1 % (2 of these 40 seeds)
-    from polcam.separation._illuminant import OWN_COLOUR, _projection_terms, _white_distance
+    from polcam.separation._illuminant import OWN_COLOUR, _parts, _projection_terms, _white_distance
 
-    z = np.array([_white_distance(*_projection_terms(_weak_highlights((1, 1, 1), sd), None, OWN_COLOUR))
+    z = np.array([_white_distance(*_projection_terms(_parts(_weak_highlights((1, 1, 1), sd)), None, OWN_COLOUR))
                   for sd in range(40)])
     assert 1.4 < float(np.mean(z * z)) < 2.8
     assert int(np.sum(z > 3.0)) <= 3                            # 0.44 expected of 40
     # a tinted light with the same weak polarization is many standard errors from white
-    zt = _white_distance(*_projection_terms(_weak_highlights((1.3, 1.0, 0.7), 0), None, OWN_COLOUR))
+    zt = _white_distance(*_projection_terms(_parts(_weak_highlights((1.3, 1.0, 0.7), 0)), None, OWN_COLOUR))
     assert zt > 10
 
 

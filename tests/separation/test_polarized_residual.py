@@ -660,6 +660,6 @@ def test_torch_path_copies_to_the_host_only_where_documented(torch_cases, monkey
     monkeypatch.setattr(_xp.TorchXP, "to_numpy", staticmethod(spy))
     for name, (st, opts) in torch_cases.items():
         separate_polarized_residual(torch.as_tensor(st), **opts)
-    assert callers <= {"_binned_spread", "_white_distance", "_total_chromaticity", "highlight_colour",
+    assert callers <= {"_binned_spread", "_white_distance", "_total_chromaticity", "_highlight_colour",
                        "fill_clipped_highlights"}, callers
     assert "fill_clipped_highlights" in callers                   # the clipped case took that path
