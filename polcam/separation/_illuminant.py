@@ -259,7 +259,7 @@ def projected_chromaticity(stack: Any, *, significance: float = 5.0, efficiency:
     Parameters
     ----------
     stack
-        (4, H, W, 3) float in [0, 1] (numpy or torch; computed in float64).
+        (4, H, W, 3) float in [0, 1] (numpy or torch; per-pixel terms in float32, sums over pixels in float64).
     significance
         How many standard deviations of the noise the signal must exceed.
     efficiency
