@@ -42,7 +42,7 @@ One implementation for numpy and PyTorch (:mod:`polcam._xp`, :mod:`polcam._image
 from __future__ import annotations
 
 import json
-from functools import lru_cache
+from functools import lru_cache, partial
 from pathlib import Path
 from typing import Any
 
@@ -115,6 +115,11 @@ def _blur(a: Any, px: int, side: int) -> Any:
     return _imageops.resize(_imageops.gaussian(small, _k(px, side // f)), (w, h), interpolation="linear")
 
 
+def _gather(a: Any, idx: Any) -> Any:
+    """``a.reshape(H * W, ...)[idx]`` for an (H, W) or (H, W, 3) array and flat pixel indices ``idx``."""
+    return namespace(a).take(a.reshape((-1,) + tuple(a.shape[2:])), idx, 0)
+
+
 def removal_bound(diffuse: Any, ic: Any, gx: Any, side: int, polarized: Any = None) -> Any:
     """The most the stage may remove, in units of ``G``: ``b = min(min_c D_c / G_c, max(e, r p))``, (H, W) float32 >= 0.
 
@@ -180,11 +185,7 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     nn = xp.maximum(xp.hypot(v["qq"], v["uu"]), 1e-6)
     along = (v["qq"] * c2 + v["uu"] * s2) / nn * coh
 
-    idx = xp.nonzero(where.reshape(-1))[0]                   # gathers by index: a boolean mask is slower
-
-    def at(a: Any) -> Any:
-        """``a[where]`` for an (H, W) or (H, W, 3) array."""
-        return xp.take(a.reshape((-1,) + tuple(a.shape[2:])), idx, 0)
+    at = partial(_gather, idx=xp.nonzero(where.reshape(-1))[0])   # ``a[where]``, by index: a mask is slower
 
     def g(a: Any, px: int) -> Any:
         return at(_blur(a, px, side))
