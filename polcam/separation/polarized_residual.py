@@ -62,8 +62,8 @@ from polcam.separation._registry import register
 from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
 from polcam.separation.tensor.torch_backend import check_device
 
-__all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "DEFAULTS", "LEARNED_FEATURES",
-           "LEARNED_WEIGHTS"]
+__all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "learned_layer", "DEFAULTS",
+           "LEARNED_FEATURES", "LEARNED_WEIGHTS"]
 
 REFERENCE = (
     "polcam's own method; builds on L. B. Wolff & T. E. Boult, IEEE TPAMI 13(7) 1991 (polarization "
@@ -246,6 +246,17 @@ def learned_inputs(stack: np.ndarray, **options: Any) -> dict[str, Any]:
         raise MethodError(f"polarized-residual: stack of shape {np.shape(stack)}: the learned stage takes "
                           "colour stacks (4, H, W, 3)")
     return inputs
+
+
+def learned_layer(inputs: dict[str, Any], weights: dict[str, np.ndarray]) -> Any:
+    """The layer the learned stage makes from :func:`learned_inputs` with ``weights`` (its training tries them).
+
+    ``weights`` as :func:`polcam.separation._learned_residual.load_weights` gives them (the shipped
+    ones make polarized-residual's default layer).  Returns (H, W, 3) float32 >= 0.
+    """
+    w = {k: (np.asarray(v, np.float32) if np.asarray(v).dtype.kind == "f" else v) for k, v in weights.items()}
+    out, _ = _learned_apply(inputs["diffuse"], inputs["x"], inputs["bound"], inputs["zone"], inputs["g"], w)
+    return namespace(out).astype(out, namespace(out).float32)
 
 
 def _separate(stack: Any, options: dict[str, Any], keep: dict[str, Any] | None,

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 
+from polcam.bench import residual_training as rt
 from polcam.bench.residual_training import fit, scene_samples
 from polcam.cli import main
 from polcam.errors import PolcamError
@@ -50,10 +52,48 @@ def test_command_writes_weights_the_method_loads(tmp_path) -> None:
     w = lr.load_weights(out)
     assert int(w["layers"]) == 3
     with np.load(out) as z:
-        assert "--scenes 2 --size 64" in json.loads(str(z["info"]))["command"]
+        info = json.loads(str(z["info"]))
+    assert "--scenes 2 --size 64" in info["command"]
+    assert set(info["harm_checks"]) == set(rt.HARM_FLOORS)       # measured and kept with the weights
 
 
 def test_command_refuses_bad_numbers(capsys) -> None:
     with pytest.raises(SystemExit):
         main(["bench", "train-residual", "--scenes", "0"])
     assert "--scenes 0" in capsys.readouterr().err
+
+
+def _removes_its_whole_bound() -> dict[str, np.ndarray]:
+    """The shipped model with its output pinned at 1: it removes all its bound allows, everywhere in its zone."""
+    w = {k: v for k, v in lr.load_weights().items() if k not in ("info", "features")}
+    last = int(w["layers"]) - 1
+    w[f"w{last}"] = np.zeros_like(w[f"w{last}"])
+    w[f"b{last}"] = np.full_like(w[f"b{last}"], 10.0)
+    return w
+
+
+def test_harm_checks_pass_the_shipped_weights_and_fail_a_greedy_model() -> None:
+    shipped = rt.harm_checks(lr.load_weights())
+    assert rt.failed_checks(shipped) == [] and shipped["checker16_kept"] < 1.0   # the stage does act there
+    greedy = rt.harm_checks(_removes_its_whole_bound())
+    assert greedy["checker16_kept"] < 0.9 and greedy["checker16_worst_square"] < 0.5
+    assert any(f.startswith("checker16_kept") for f in rt.failed_checks(greedy))
+
+
+def test_weights_that_fail_the_checks_do_not_replace_the_shipped_ones(tmp_path, monkeypatch, capsys) -> None:
+    from polcam.commands.bench import separation as cmd
+
+    shipped = tmp_path / "residual_weights.npz"
+    shipped.write_bytes(lr.WEIGHTS_FILE.read_bytes())
+    monkeypatch.setattr(cmd, "RESIDUAL_WEIGHTS", shipped)         # the command's notion of "the shipped weights"
+    monkeypatch.setattr(rt, "train", lambda *a, **k: {**_removes_its_whole_bound(), "loss": np.array(0.0)})
+    assert main(["bench", "train-residual", "--out", str(shipped)]) == 1
+    assert shipped.read_bytes() == lr.WEIGHTS_FILE.read_bytes()   # left as it was
+    err = capsys.readouterr().err
+    assert re.search(r"checker16_kept 0\.\d+ < 0\.98", err) and "is left as it was" in err
+    rejected = tmp_path / "residual_weights.rejected.npz"           # nothing lost: the new weights are kept
+    assert lr.load_weights(rejected)["b2"][0] == 10.0
+    # elsewhere than the shipped file the weights are written, with a warning
+    other = tmp_path / "try.npz"
+    assert main(["bench", "train-residual", "--out", str(other)]) == 0
+    assert other.exists() and "warning: these weights fail" in capsys.readouterr().err

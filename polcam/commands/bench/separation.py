@@ -279,7 +279,10 @@ def _add_train_residual(bsub: Any) -> None:
     ap = bsub.add_parser("train-residual", help="train polarized-residual's learned unpolarized-specular stage",
                          description="Train the learned stage of polarized-residual (unpolarized=\"learned\") on "
                                      "the randomized family's training seeds (polcam.bench.residual_training) and "
-                                     "write the weights atomically.")
+                                     "write the weights atomically, with how they were made and what they keep of "
+                                     "a matte grey checker (harm_checks). Weights that fail those checks do not "
+                                     "replace the shipped ones: they go to <out>.rejected.npz and the command "
+                                     "exits with status 1.")
     ap.add_argument("--scenes", type=int, default=rt.DEFAULT_SCENES, help=f"training scenes (default {rt.DEFAULT_SCENES})")
     ap.add_argument("--size", type=int, default=128, help="scene side in pixels (default 128)")
     ap.add_argument("--start", type=int, default=0, help="offset of the first training seed (default 0)")
@@ -306,9 +309,24 @@ def _run_train_residual(args: argparse.Namespace) -> int:
                        iterations=args.iterations, l2=args.l2, seed=args.seed)
     command = reproducing_command("polcam bench train-residual", args,
                                   ("scenes", "size", "start", "samples", "iterations", "l2", "seed"))
-    info = {"command": command, "hidden": list(rt.DEFAULT_HIDDEN),
+    checks = rt.harm_checks(weights)
+    info = {"command": command, "hidden": list(rt.DEFAULT_HIDDEN), "harm_checks": checks,
             "data": "the randomized scene family's training seeds (polcam.synth.family.training_seeds), albedo "
                     "from public-domain / CC0 photographs of scikit-image; no other data"}
+    failed = rt.failed_checks(checks)
+    took = f"{time.perf_counter() - t0:.0f} s (loss {float(weights['loss']):.4g})"
+    if failed and Path(args.out).resolve() == Path(RESIDUAL_WEIGHTS).resolve():
+        # the shipped weights are what every separation uses: weights that thin a matte surface do not replace them
+        kept = Path(args.out).with_name(Path(args.out).stem + ".rejected.npz")
+        rt.save_weights(weights, kept, info=info)
+        sys.stderr.write(f"polcam bench train-residual: the new weights fail the do-no-harm checks "
+                         f"({'; '.join(failed)}; expected at least the floors of "
+                         f"polcam.bench.residual_training.HARM_FLOORS): {args.out} is left as it was; the new "
+                         f"weights are in {kept} ({took})\n")
+        return 1
     rt.save_weights(weights, args.out, info=info)
-    sys.stderr.write(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s (loss {float(weights['loss']):.4g})\n")
+    sys.stderr.write(f"wrote {args.out} in {took}; checker kept {checks['checker16_kept']:.4f} / "
+                     f"{checks['checker32_kept']:.4f}\n")
+    if failed:
+        sys.stderr.write(f"warning: these weights fail the do-no-harm checks ({'; '.join(failed)})\n")
     return 0
