@@ -97,3 +97,27 @@ def test_weights_that_fail_the_checks_do_not_replace_the_shipped_ones(tmp_path, 
     other = tmp_path / "try.npz"
     assert main(["bench", "train-residual", "--out", str(other)]) == 0
     assert other.exists() and "warning: these weights fail" in capsys.readouterr().err
+
+
+def test_matte_scenes_hold_no_specular_light() -> None:
+    stack, truth, mask = rt.matte_scene(0, size=64)
+    assert stack.shape == (4, 64, 64, 3) and stack.dtype == np.float32 and truth.shape == (64, 64, 3) and mask.all()
+    # nothing but the diffuse, unpolarized: the light is the truth's (noise and demosaicing average
+    # out over the image), and the image's S1 and S2 vanish against its S0
+    assert abs(stack.mean() / truth.mean() - 1.0) < 0.005
+    s0 = float((stack[0] + stack[2]).sum())
+    assert abs(float((stack[0] - stack[2]).sum())) < 0.005 * s0 and abs(float((stack[1] - stack[3]).sum())) < 0.005 * s0
+    again, _, _ = rt.matte_scene(0, size=64)
+    assert np.array_equal(again, stack) and not np.array_equal(rt.matte_scene(1, size=64)[0], stack)
+
+
+def test_training_samples_add_the_matte_scenes() -> None:
+    family = rt.training_samples(1, size=64, max_samples=10**6, matte=0)
+    both = rt.training_samples(1, size=64, max_samples=10**6, matte=2, matte_samples=10**6)
+    added = len(both["target"]) - len(family["target"])
+    assert added > 0 and np.array_equal(both["x"][:len(family["target"])], family["x"])
+    # a matte scene's target is what its layer holds above the truth: little of the bound
+    tail = slice(len(family["target"]), None)
+    assert (both["target"][tail] >= 0).all() and both["target"][tail].sum() < 0.5 * both["bound"][tail].sum()
+    assert len(rt.training_samples(1, size=64, max_samples=10**6, matte=2, matte_samples=50)["target"]) < \
+        len(family["target"]) + 120

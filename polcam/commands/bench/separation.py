@@ -291,6 +291,11 @@ def _add_train_residual(bsub: Any) -> None:
     ap.add_argument("--iterations", type=int, default=rt.DEFAULT_ITERATIONS,
                     help=f"L-BFGS iterations (default {rt.DEFAULT_ITERATIONS})")
     ap.add_argument("--l2", type=float, default=rt.DEFAULT_L2, help=f"weight decay (default {rt.DEFAULT_L2:g})")
+    ap.add_argument("--matte-scenes", type=int, default=rt.DEFAULT_MATTE_SCENES,
+                    help=f"matte scenes with no specular light (target 0) added to the training "
+                         f"(default {rt.DEFAULT_MATTE_SCENES})")
+    ap.add_argument("--matte-samples", type=int, default=rt.DEFAULT_MATTE_SAMPLES,
+                    help=f"pixels of the matte scenes fitted (default {rt.DEFAULT_MATTE_SAMPLES})")
     ap.add_argument("--seed", type=int, default=0, help="seed of the subset and the initial weights (default 0)")
     ap.add_argument("--out", type=Path, default=RESIDUAL_WEIGHTS, help="output .npz (default: the shipped weights)")
     ap.set_defaults(bench_run=_run_train_residual, bench_parser=ap)
@@ -302,13 +307,15 @@ def _run_train_residual(args: argparse.Namespace) -> int:
     for name, least in (("scenes", 1), ("size", 32), ("samples", 1), ("iterations", 1)):
         if getattr(args, name) < least:
             args.bench_parser.error(f"--{name} {getattr(args, name)}: expected an integer of at least {least}")
-    if args.start < 0 or args.l2 < 0:
-        args.bench_parser.error("--start and --l2: expected non-negative numbers")
+    if args.start < 0 or args.l2 < 0 or args.matte_scenes < 0 or args.matte_samples < 0:
+        args.bench_parser.error("--start, --l2, --matte-scenes and --matte-samples: expected non-negative numbers")
     t0 = time.perf_counter()
     weights = rt.train(args.scenes, size=args.size, start=args.start, max_samples=args.samples,
-                       iterations=args.iterations, l2=args.l2, seed=args.seed)
+                       iterations=args.iterations, l2=args.l2, seed=args.seed, matte=args.matte_scenes,
+                       matte_samples=args.matte_samples)
     command = reproducing_command("polcam bench train-residual", args,
-                                  ("scenes", "size", "start", "samples", "iterations", "l2", "seed"))
+                                  ("scenes", "size", "start", "samples", "iterations", "l2", "matte_scenes",
+                                   "matte_samples", "seed"))
     checks = rt.harm_checks(weights)
     info = {"command": command, "hidden": list(rt.DEFAULT_HIDDEN), "harm_checks": checks,
             "data": "the randomized scene family's training seeds (polcam.synth.family.training_seeds), albedo "
