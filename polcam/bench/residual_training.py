@@ -143,12 +143,16 @@ def matte_scene(index: int, *, size: int = 128) -> tuple[np.ndarray, np.ndarray,
         d[y0:y0 + hh, x0:x0 + ww] = rng.uniform(0.05, 0.8) * tint
     light = np.ones(3) if rng.random() < 0.6 else rng.uniform(0.7, 1.3, 3)
     d = np.clip(d * light * rng.uniform(0.5, 1.3), 0.0, 0.95)
+    return _matte_camera(d, rng.uniform(5000.0, 30000.0), rng), d, np.ones((size, size), bool)
+
+
+def _matte_camera(d: np.ndarray, full_well: float, rng: np.random.Generator) -> np.ndarray:
+    """Unpolarized light ``d`` ((H, W, 3)) as the camera gives it: shot noise of ``full_well`` electrons,
+    12 bits, the IMX250MYR mosaic and the default demosaicing ((4, H, W, 3) float32)."""
     st = synthesize(d, np.zeros_like(d), np.zeros_like(d))
-    full_well = rng.uniform(5000.0, 30000.0)
     st = np.round(np.clip(rng.poisson(st * full_well) / full_well, 0, 1) * 4095) / 4095
     raw = mosaic_stack(np.clip(st, 0.0, 1.0), layout="imx250myr")
-    cam = np.clip(demosaic(raw, layout="imx250myr"), 0.0, 1.0).astype(np.float32)
-    return cam, d, np.ones((size, size), bool)
+    return np.clip(demosaic(raw, layout="imx250myr"), 0.0, 1.0).astype(np.float32)
 
 
 def _shapes(n_in: int, hidden: tuple[int, ...]) -> Iterator[tuple[tuple[int, int], tuple[int]]]:
@@ -231,11 +235,7 @@ def grey_checker(cell: int) -> np.ndarray:
     yy, xx = np.mgrid[:h, :w]
     level = np.where(((yy // cell) + (xx // cell)) % 2 == 0, 0.55, 0.18)
     level = level * (1.0 + 0.1 * rng.random((h // cell + 1, w // cell + 1))[yy // cell, xx // cell])
-    d = np.repeat(level[..., None], 3, axis=-1)
-    st = synthesize(d, np.zeros_like(d), np.zeros_like(d))
-    st = np.round(np.clip(rng.poisson(st * 20000.0) / 20000.0, 0, 1) * 4095) / 4095
-    raw = mosaic_stack(np.clip(st, 0.0, 1.0), layout="imx250myr")
-    return np.clip(demosaic(raw, layout="imx250myr"), 0.0, 1.0).astype(np.float32)
+    return _matte_camera(np.repeat(level[..., None], 3, axis=-1), 20000.0, rng)
 
 
 def harm_checks(weights: dict[str, np.ndarray]) -> dict[str, float]:

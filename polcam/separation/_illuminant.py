@@ -53,6 +53,9 @@ WHITE_Z = 3.0
 #: Level (on the [0, 1] scale of a polarization image) at and above which the separation methods
 #: treat a pixel as clipped: its measured light is not a measurement of the scene.
 SATURATED = 0.98
+#: Share of the lit, polarized, unsaturated pixels, the brightest, whose colour is the highlights'
+#: (:func:`highlight_colour`).
+HIGHLIGHT_SHARE = 0.002
 #: Chromaticity distance from the surface's own colour over which polarized light counts in full
 #: as the illuminant's (:func:`projected_chromaticity`'s ``own_colour``).
 OWN_COLOUR = 0.1
@@ -152,7 +155,7 @@ def polarized_colour(stack: np.ndarray, *, efficiency: np.ndarray | None = None)
     return _unit_mean(projected_chromaticity(stack, efficiency=eff, own_colour=OWN_COLOUR))
 
 
-def highlight_colour(stack: np.ndarray, *, share: float = 0.002) -> np.ndarray:
+def highlight_colour(stack: np.ndarray, *, share: float = HIGHLIGHT_SHARE) -> np.ndarray:
     """Own colour of the brightest unsaturated polarized pixels (the highlights).
 
     Among lit pixels (mean intensity above 5 % of the 99th percentile: a dark background's
@@ -212,14 +215,13 @@ def estimate_illuminant(stack: np.ndarray, *, efficiency: object = None,
     -------
     IlluminantEstimate
     """
-    if efficiency is not None:
-        eff = check_efficiency(efficiency)
-        pol = polarized_colour(stack, efficiency=eff)
-        return IlluminantEstimate(pol, eff / eff.max(), "calibration", pol, highlight_colour(stack))
-    parts = _parts(stack)
-    terms, ok = _projection_terms(parts, None, OWN_COLOUR)
-    pol = _unit_mean(_total_chromaticity(terms, ok, 5.0))
-    hi = _highlight_colour(parts, 0.002)
+    eff = None if efficiency is None else check_efficiency(efficiency)
+    parts = _parts(stack)                       # shared by the polarized light's and the highlights' colour
+    terms, ok = _projection_terms(parts, eff, OWN_COLOUR)
+    pol = _unit_mean(_total_chromaticity(terms, ok, 5.0))      # polarized_colour
+    hi = _highlight_colour(parts, HIGHLIGHT_SHARE)
+    if eff is not None:
+        return IlluminantEstimate(pol, eff / eff.max(), "calibration", pol, hi)
     if _white_distance(terms, ok) < WHITE_Z:
         # the polarized light's colour is within its own noise of white: no evidence against the
         # camera's white balance (the weak polarization of near-normal specular light, a small image)

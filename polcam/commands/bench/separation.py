@@ -324,12 +324,12 @@ def _run_train_residual(args: argparse.Namespace) -> int:
     took = f"{time.perf_counter() - t0:.0f} s (loss {float(weights['loss']):.4g})"
     if failed and Path(args.out).resolve() == Path(RESIDUAL_WEIGHTS).resolve():
         # the shipped weights are what every separation uses: weights that thin a matte surface do not replace them
-        kept = Path(args.out).with_name(Path(args.out).stem + ".rejected.npz")
-        rt.save_weights(weights, kept, info=info)
+        rejected = Path(args.out).with_name(Path(args.out).stem + ".rejected.npz")
+        rt.save_weights(weights, rejected, info=info)
         sys.stderr.write(f"polcam bench train-residual: the new weights fail the do-no-harm checks "
                          f"({'; '.join(failed)}; expected at least the floors of "
                          f"polcam.bench.residual_training.HARM_FLOORS): {args.out} is left as it was; the new "
-                         f"weights are in {kept} ({took})\n")
+                         f"weights are in {rejected} ({took})\n")
         return 1
     rt.save_weights(weights, args.out, info=info)
     sys.stderr.write(f"wrote {args.out} in {took}; checker kept {checks['checker16_kept']:.4f} / "
