@@ -13,11 +13,24 @@ from polcam import _imageops
 from polcam._xp import namespace
 from polcam.separation._common import min3
 
-__all__ = ["EVIDENCE_MEDIAN", "peak_excess"]
+__all__ = ["EVIDENCE_MEDIAN", "FLOOR_QUANTILE", "peak_excess", "surroundings_floor"]
 
 #: Side of the median filter its callers take before the opening: it keeps demosaicing's one- or
 #: two-pixel overshoot at edges out of both the pixel's level and its surroundings' floor.
 EVIDENCE_MEDIAN = 5
+#: The quantile of the surroundings' level that is their floor in the rank opening: the lower
+#: quartile.  Darker features that reach into every window but cover under a quarter of it (holes
+#: and pits, the gaps between patches, print, narrow shadows) do not lower the floor of the surface
+#: around them; a highlight that covers up to three quarters of the window still rises above it.
+#: A sweep on the first 400 validation scenes (weights of the learned stage unchanged): 0.1, 0.25
+#: and 0.5 score within 0.02 dB of the plain opening's floor (28.21 dB).
+FLOOR_QUANTILE = 0.25
+#: Thresholds of the quantile filter; its level is interpolated between two of them, to within
+#: ``1 / (_LEVELS - 1)`` of the channel's range (the plain opening bounds the floor from below).
+_LEVELS = 128
+#: Larger images are shrunk by an integer factor to about this side before the quantile filter
+#: (the learned stage's training side): a floor is a level of the surroundings, not of single pixels.
+_RANK_SIDE = 128
 
 
 def peak_excess(ic: Any, g: Any, *, window: int, smooth: int) -> Any:
@@ -55,6 +68,69 @@ def peak_excess(ic: Any, g: Any, *, window: int, smooth: int) -> Any:
     """
     xp = namespace(ic)
     base = _imageops.median(ic, smooth)
-    floor = _imageops.dilate(_imageops.erode(base, window), window)
-    excess = min3((xp.minimum(ic, base) - floor) / g)
+    excess = min3((xp.minimum(ic, base) - surroundings_floor(base, window)) / g)
     return xp.astype(xp.maximum(excess, 0.0), xp.float32)
+
+
+def surroundings_floor(base: Any, window: int) -> Any:
+    """The floor of a pixel's surroundings: the larger of the opening and the rank opening of ``base``.
+
+    Parameters
+    ----------
+    base
+        (H, W, 3) float32 level (numpy or torch), the mean over angles median-filtered.
+    window
+        Odd side in pixels of the square.
+
+    Returns
+    -------
+    (H, W, 3) float32 of the same kind, at most the largest value of ``base`` in each channel.
+
+    Notes
+    -----
+    The rank opening is ``dilate(Q(base))``, ``Q`` the :data:`FLOOR_QUANTILE` quantile over the
+    square (:func:`_quantile_filter`).  An image whose larger side is at least twice
+    :data:`_RANK_SIDE` is shrunk by the integer factor ``f = side // _RANK_SIDE`` (area) for it, with
+    the square's side divided by ``f``, and the result brought back (bilinear); the plain opening,
+    at full resolution, keeps the floor exact at the edges of the surfaces wider than the window.
+    """
+    xp = namespace(base)
+    opened = _imageops.dilate(_imageops.erode(base, window), window)
+    h, w = base.shape[:2]
+    f = max(h, w) // _RANK_SIDE
+    small, k = base, window
+    if f >= 2:
+        small = _imageops.resize(base, (max(w // f, 1), max(h // f, 1)), interpolation="area")
+        k = max(int(round(window / f)) // 2 * 2 + 1, 3)
+    ranked = _imageops.dilate(_quantile_filter(small, k, FLOOR_QUANTILE), k)
+    if f >= 2:
+        ranked = _imageops.resize(ranked, (w, h), interpolation="linear")
+    return xp.maximum(opened, ranked)
+
+
+def _quantile_filter(a: Any, k: int, q: float) -> Any:
+    """The ``q`` quantile of each channel over the ``k x k`` square around each pixel, (H, W, 3) as ``a``.
+
+    From the share of the square below each of :data:`_LEVELS` thresholds spread over the channel's
+    range, and the sum of those values (box filters, border reflected as
+    :func:`polcam._imageops.box`): the quantile lies between the last threshold whose share is
+    under ``q`` and the first at or above it, and is taken as the mean of the square's values
+    between the two: exact on a plateau (a uniform surface between darker features), within one
+    level elsewhere.
+    """
+    xp = namespace(a)
+    lo = xp.amin(a, axis=(0, 1))
+    step = (xp.amax(a, axis=(0, 1)) - lo) / float(_LEVELS - 1)
+    below = xp.zeros(a.shape, like=a)
+    below_sum = below
+    est = below + (lo + step * float(_LEVELS - 1))           # the channel's largest value (a constant channel's)
+    done = below > 0.0                                       # all False
+    for j in range(1, _LEVELS + 1):
+        under = xp.astype(a < lo + step * (float(j) - 0.5), xp.float32)
+        share = _imageops.box(under, k)
+        total = _imageops.box(a * under, k)
+        new = (share >= q) & ~done
+        est = xp.where(new, (total - below_sum) / xp.maximum(share - below, 1e-6), est)
+        done = done | new
+        below, below_sum = share, total
+    return xp.astype(est, xp.float32)

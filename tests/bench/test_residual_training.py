@@ -76,8 +76,12 @@ def test_harm_checks_pass_the_shipped_weights_and_fail_a_greedy_model() -> None:
     shipped = rt.harm_checks(lr.load_weights())
     assert rt.failed_checks(shipped) == [] and shipped["checker16_kept"] < 1.0   # the stage does act there
     greedy = rt.harm_checks(_removes_its_whole_bound())
-    assert greedy["checker16_kept"] < 0.9 and greedy["checker16_worst_square"] < 0.5
-    assert any(f.startswith("checker16_kept") for f in rt.failed_checks(greedy))
+    # what the evidence bound would let through if the model took all of it: a good part of the
+    # 16-pixel squares' light, and of the chart's greys
+    assert greedy["checker16_kept"] < 0.9 and greedy["checker16_worst_square"] < 0.7
+    assert greedy["chart_worst_grey"] < 0.96
+    failed = rt.failed_checks(greedy)
+    assert any(f.startswith("checker16_kept") for f in failed) and any(f.startswith("chart_worst_grey") for f in failed)
 
 
 def test_weights_that_fail_the_checks_do_not_replace_the_shipped_ones(tmp_path, monkeypatch, capsys) -> None:

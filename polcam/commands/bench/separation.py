@@ -333,7 +333,7 @@ def _run_train_residual(args: argparse.Namespace) -> int:
         return 1
     rt.save_weights(weights, args.out, info=info)
     sys.stderr.write(f"wrote {args.out} in {took}; checker kept {checks['checker16_kept']:.4f} / "
-                     f"{checks['checker32_kept']:.4f}\n")
+                     f"{checks['checker32_kept']:.4f}, the chart's worst grey {checks['chart_worst_grey']:.4f}\n")
     if failed:
         sys.stderr.write(f"warning: these weights fail the do-no-harm checks ({'; '.join(failed)})\n")
     return 0
