@@ -20,7 +20,8 @@ unpolarized specular:
 inside the neighbourhood of coherent polarized light (the highlight gate of
 :func:`polcam.separation._residual.highlight_mask`, dilated) and off clipped pixels; nothing is
 removed elsewhere.  ``e`` (:func:`polcam.separation._highlight.peak_excess`, in units of ``G``, the
-floor an opening over a square of :data:`EVIDENCE_WINDOW` of the larger side) is the evidence of a
+floor the larger of the opening and the lower-quartile rank opening over a square of
+:data:`EVIDENCE_WINDOW` of the larger side) is the evidence of a
 highlight at the place: a uniform matte patch does not rise above itself, so it is never thinned.
 ``r p`` (:data:`POLARIZED_RATIO`) is the other evidence, the highlight's own polarization: a broad
 highlight that covers its surroundings does not rise above them, but its polarized part is seen
@@ -124,7 +125,7 @@ def removal_bound(diffuse: Any, ic: Any, gx: Any, side: int, polarized: Any = No
     """The most the stage may remove, in units of ``G``: ``b = min(min_c D_c / G_c, max(e, r p))``, (H, W) float32 >= 0.
 
     ``e`` is the rise of ``ic`` (H, W, 3) above its surroundings' floor
-    (:func:`polcam.separation._highlight.peak_excess`, an opening over a square of
+    (:func:`polcam.separation._highlight.peak_excess`, the floor of its openings over a square of
     :data:`EVIDENCE_WINDOW` of the larger side ``side``); ``p`` (H, W, or None: 0) the coherent
     polarized light at the pixel in units of ``G`` (the highlight gate times its amplitude over the
     noise floor) and ``r`` :data:`POLARIZED_RATIO`: where a highlight's polarization is seen, its

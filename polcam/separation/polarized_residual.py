@@ -514,7 +514,8 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
 def _highlight_evidence(diffuse: Any, ic: Any, gx: Any, *, window: int) -> Any:
     """Step 5: nothing is removed beyond the multiple of ``G`` by which the pixel rises above its surroundings.
 
-    The surroundings' floor is the opening by a square of side ``window``
+    The surroundings' floor is the larger of the opening and the lower-quartile rank opening by a
+    square of side ``window``
     (:func:`polcam.separation._highlight.peak_excess`).
     """
     xp = namespace(diffuse)
