@@ -247,28 +247,35 @@ def grey_checker(cell: int) -> np.ndarray:
     return _matte_camera(np.repeat(level[..., None], 3, axis=-1), 20000.0, rng)
 
 
-def colour_chart(cell: int = 20, gap: int = 6) -> tuple[np.ndarray, np.ndarray]:
+def colour_chart(cell: int = 20, gap: int = 6, *, frame: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """A matte colour chart as the camera gives it, and the mask of each of its grey patches.
 
     The 4 x 6 patches of :data:`CHART_PATCHES` (``cell`` pixels square, 0.9 of their reflectance)
     on black (0.02) with ``gap`` pixels between them and around them: every window of the evidence
-    bound holds dark gaps.  White light, no specular, 12-bit shot noise of a 20,000-electron full
-    well, the IMX250MYR mosaic and the default demosaicing.
+    bound holds dark gaps.  With ``frame`` = (H, W) the chart sits in the middle of a frame of that
+    size whose surround is a mid grey (0.18), as in a lab shot.  White light, no specular, 12-bit
+    shot noise of a 20,000-electron full well, the IMX250MYR mosaic and the default demosaicing.
 
     Returns
     -------
     stack : numpy.ndarray
-        (4, H, W, 3) float32 in [0, 1], ``H = 4 (cell + gap) + gap``, ``W = 6 (cell + gap) + gap``.
+        (4, H, W, 3) float32 in [0, 1]; without ``frame``, ``H = 4 (cell + gap) + gap`` and
+        ``W = 6 (cell + gap) + gap``.
     greys : numpy.ndarray
         (6, H, W) bool: the inside (3 pixels in from the edges) of each grey patch, white first.
     """
     pitch = cell + gap
-    h, w = 4 * pitch + gap, 6 * pitch + gap
-    d = np.full((h, w, 3), 0.02)
+    ch, cw = 4 * pitch + gap, 6 * pitch + gap
+    h, w = frame if frame is not None else (ch, cw)
+    if h < ch or w < cw or h % 2 or w % 2:
+        raise ValueError(f"frame {frame}: expected even sides of at least the chart's {ch} x {cw}")
+    d = np.full((h, w, 3), 0.18)
+    y0, x0 = (h - ch) // 2, (w - cw) // 2
+    d[y0:y0 + ch, x0:x0 + cw] = 0.02
     greys = np.zeros((6, h, w), bool)
     for r in range(4):
         for c in range(6):
-            y, x = gap + r * pitch, gap + c * pitch
+            y, x = y0 + gap + r * pitch, x0 + gap + c * pitch
             d[y:y + cell, x:x + cell] = 0.9 * CHART_PATCHES[r, c]
             if r == 3:
                 greys[c, y + 3:y + cell - 3, x + 3:x + cell - 3] = True

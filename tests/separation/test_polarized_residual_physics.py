@@ -72,6 +72,19 @@ def test_matte_colour_chart_keeps_its_greys():
     np.testing.assert_allclose(white / white.sum(), measured / measured.sum(), atol=3e-3)
 
 
+def test_matte_colour_chart_in_a_camera_frame_keeps_its_greys():
+    # the same chart with 30-pixel patches in a 1224 x 1024 frame of mid grey: the evidence window
+    # (0.12 of the side) spans several patches and their gaps
+    from polcam.bench.residual_training import colour_chart
+
+    cam, greys = colour_chart(30, 8, frame=(1024, 1224))
+    res = _separate(cam)
+    ic = cam.mean(axis=0).sum(axis=-1)
+    dsum = res.diffuse.sum(axis=-1)
+    kept = [dsum[g].sum() / ic[g].sum() for g in greys]
+    assert min(kept) >= 0.98, kept
+
+
 @pytest.mark.parametrize("albedo", [(0.6, 0.6, 0.6), (0.7, 0.35, 0.2)])
 def test_matte_sphere_with_polarized_diffuse_keeps_its_rims(albedo):
     # Fresnel-polarized diffuse light (transmission, n = 1.6, DoLP up to ~0.4 at the rim), no
