@@ -197,3 +197,23 @@ def test_polarized_highlight_on_a_dark_coloured_object_is_removed_as_polarized()
     s = res.specular[hl]
     g = np.asarray(res.info["illuminant"])
     assert np.allclose(s / g, (s / g).mean(axis=-1, keepdims=True), atol=2e-3)
+
+
+def test_real_yellow_block_between_dark_holes_keeps_its_light(shared_data):
+    # the shared jcpd-15 stack (a real colour polarization stack, sampled in the IMX250MYR layout and
+    # demosaiced as `polcam bench real` does): a bright yellow toy block whose face has dark holes in
+    # every window of the evidence bound and no highlight to speak of.  Taking the holes for the
+    # floor, the learned stage took a grey sheen off the face (0.951 of its light kept, an olive
+    # blotch with a ragged edge where the clipped pixels begin)
+    from polcam.bench import real
+
+    stacks = real.find_scenes(shared_data)
+    if "jcpd-15" not in stacks:
+        pytest.skip("jcpd-15 not in the shared data")
+    given = real.camera_stack(real.prepare(real.load_stack(stacks["jcpd-15"])))
+    res = _separate(given)
+    face = (slice(250, 400), slice(500, 650))
+    unclipped = (given[:, face[0], face[1]] < 0.98).all(axis=(0, 3))
+    measured = given.mean(axis=0)[face][unclipped]
+    assert unclipped.mean() > 0.5
+    assert res.diffuse[face][unclipped].sum() / measured.sum() >= 0.98
