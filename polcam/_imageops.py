@@ -16,6 +16,8 @@ tests/test_imageops.py against the OpenCV calls):
 * :func:`sobel` - ``cv2.Sobel(a, CV_32F, dx, dy, ksize=3)``, ``BORDER_REFLECT_101``;
 * :func:`resize` - ``cv2.resize`` with ``INTER_AREA`` (shrinking only) or ``INTER_LINEAR``: on
   torch, as two resampling matrices built with OpenCV's weights (``M_y a M_x^T``).
+* :func:`shrunk` - any of these at a coarser scale: the array shrunk by an integer factor
+  (``resize``, area), filtered, and brought back (``resize``, bilinear).
 
 Arrays are (H, W) or (H, W, C); every function returns the input's shape and dtype.
 """
@@ -29,7 +31,7 @@ import numpy as np
 
 from polcam._xp import namespace
 
-__all__ = ["gaussian", "box", "median", "dilate", "erode", "sobel", "resize"]
+__all__ = ["gaussian", "box", "median", "dilate", "erode", "sobel", "resize", "shrunk"]
 
 
 def _reflect101(n: int, r: int) -> np.ndarray:
@@ -195,6 +197,17 @@ def resize(a: Any, size: tuple[int, int], *, interpolation: str) -> Any:
     if a.ndim == 2:
         return my @ a @ mx.T
     return torch.einsum("ih,hwc,jw->ijc", my, a, mx)
+
+
+def shrunk(a: Any, factor: int, fn: Any) -> Any:
+    """``fn`` applied to ``a`` shrunk by the integer ``factor`` (area), brought back to ``a``'s size (bilinear).
+
+    A neighbourhood measure at a coarser scale costs what it costs there; ``fn`` maps an (h, w, ...)
+    array to one of the same shape.
+    """
+    h, w = a.shape[:2]
+    small = resize(a, (max(w // factor, 1), max(h // factor, 1)), interpolation="area")
+    return resize(fn(small), (w, h), interpolation="linear")
 
 
 def _area_matrix(n: int, m: int) -> np.ndarray:

@@ -103,3 +103,23 @@ def test_resize_refuses_what_it_does_not_do():
         _imageops.resize(np.zeros((4, 4), np.float32), (2, 2), interpolation="cubic")
     with pytest.raises(ValueError, match="only shrinking"):
         _imageops.resize(torch.zeros((4, 4)), (8, 8), interpolation="area")
+
+
+def _shrunk_case():
+    a = _rand((61, 90, 3), seed=4)
+    small = cv2.resize(a, (22, 15), interpolation=cv2.INTER_AREA)
+    return a, cv2.resize(cv2.GaussianBlur(small, (5, 5), 0), (90, 61), interpolation=cv2.INTER_LINEAR)
+
+
+def test_shrunk_filters_at_the_coarse_scale_and_returns_the_input_size():
+    a, want = _shrunk_case()
+    got = _imageops.shrunk(a, 4, lambda s: cv2.GaussianBlur(s, (5, 5), 0))
+    assert got.shape == a.shape
+    np.testing.assert_array_equal(got, want)
+
+
+def test_shrunk_on_torch_matches_opencv():
+    torch = pytest.importorskip("torch")
+    a, want = _shrunk_case()
+    got = _imageops.shrunk(torch.as_tensor(a), 4, lambda s: _imageops.gaussian(s, 5))
+    np.testing.assert_allclose(got.numpy(), want, rtol=0, atol=2e-6)

@@ -23,9 +23,10 @@ wherever the same BLAS runs the command.
 
 The fit's quality on the family does not vouch for doing no harm: two trainings of the same
 configuration that score alike on the validation split can differ on a matte surface.
-:func:`harm_checks` measures the weights on the matte grey checker that the physics tests hold
-(light and dark grey squares under white light, no specular, through the mosaic and the default
-demosaicing: false polarization at every edge); ``polcam bench train-residual`` records the figures
+:func:`harm_checks` measures the weights on the matte scenes that the physics tests hold: grey
+checkers (light and dark grey squares under white light, no specular, through the mosaic and the
+default demosaicing: false polarization at every edge) and a colour chart with black gaps
+(:func:`colour_chart`); ``polcam bench train-residual`` records the figures
 with the weights and does not replace the shipped weights with ones that fail them.  Training also
 reads :func:`matte_scene` scenes (grey rectangles, no specular light, target 0): without them, the
 default configuration's weights kept 0.965 of the 16-pixel checker's light, with them 0.980, at the
@@ -291,21 +292,20 @@ def harm_checks(weights: dict[str, np.ndarray]) -> dict[str, float]:
     least of that ratio over its six grey patches.  The layer is polarized-residual's default one with
     ``weights`` in its learned stage.
     """
-    cam, greys = colour_chart()
-    layer = np.asarray(learned_layer(learned_inputs(cam), weights), np.float64).sum(axis=-1)
-    ic = cam.mean(axis=0).sum(axis=-1)
-    out = {"chart_worst_grey": float(min(layer[g].sum() / ic[g].sum() for g in greys))}
+    def kept(cam: np.ndarray, regions: Any) -> tuple[float, float]:
+        """The layer's light over the measured light: overall, and the least over ``regions`` (masks)."""
+        layer = np.asarray(learned_layer(learned_inputs(cam), weights), np.float64).sum(axis=-1)
+        ic = cam.mean(axis=0).sum(axis=-1)
+        return float(layer.sum() / ic.sum()), float(min(layer[r].sum() / ic[r].sum() for r in regions))
+
+    out = {"chart_worst_grey": kept(*colour_chart())[1]}
     for cell in (16, 32):
         cam = grey_checker(cell)
-        layer = learned_layer(learned_inputs(cam), weights)
-        ic = cam.mean(axis=0).sum(axis=-1)
-        dsum = np.asarray(layer, np.float64).sum(axis=-1)
-        yy, xx = np.mgrid[:ic.shape[0], :ic.shape[1]]
+        yy, xx = np.mgrid[:cam.shape[1], :cam.shape[2]]
         squares = (yy // cell) * 100 + (xx // cell)
         inner = ((yy % cell) >= 3) & ((yy % cell) < cell - 3) & ((xx % cell) >= 3) & ((xx % cell) < cell - 3)
-        out[f"checker{cell}_kept"] = float(dsum.sum() / ic.sum())
-        out[f"checker{cell}_worst_square"] = float(min(dsum[(squares == c) & inner].sum() / ic[(squares == c) & inner].sum()
-                                                       for c in np.unique(squares)))
+        out[f"checker{cell}_kept"], out[f"checker{cell}_worst_square"] = kept(
+            cam, ((squares == c) & inner for c in np.unique(squares)))
     return out
 
 

@@ -63,7 +63,7 @@ def peak_excess(ic: Any, g: Any, *, window: int, smooth: int) -> Any:
     window
         Odd side in pixels of the opening's square.
     smooth
-        Odd side of the Gaussian applied before the opening.
+        Odd side of the median filter applied before the openings.
 
     Returns
     -------
@@ -99,15 +99,12 @@ def surroundings_floor(base: Any, window: int) -> Any:
     """
     xp = namespace(base)
     opened = _imageops.dilate(_imageops.erode(base, window), window)
-    h, w = base.shape[:2]
-    f = max(h, w) // _RANK_SIDE
-    small, k = base, window
-    if f >= 2:
-        small = _imageops.resize(base, (max(w // f, 1), max(h // f, 1)), interpolation="area")
+    f = max(base.shape[:2]) // _RANK_SIDE
+    if f < 2:
+        ranked = _imageops.dilate(_quantile_filter(base, window, FLOOR_QUANTILE), window)
+    else:
         k = max(int(round(window / f)) // 2 * 2 + 1, 3)
-    ranked = _imageops.dilate(_quantile_filter(small, k, FLOOR_QUANTILE), k)
-    if f >= 2:
-        ranked = _imageops.resize(ranked, (w, h), interpolation="linear")
+        ranked = _imageops.shrunk(base, f, lambda small: _imageops.dilate(_quantile_filter(small, k, FLOOR_QUANTILE), k))
     return xp.maximum(opened, ranked)
 
 

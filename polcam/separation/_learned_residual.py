@@ -111,9 +111,7 @@ def _blur(a: Any, px: int, side: int) -> Any:
     f = side // TRAIN_SIDE
     if f < 2:
         return _imageops.gaussian(a, _k(px, side))
-    h, w = a.shape[:2]
-    small = _imageops.resize(a, (max(w // f, 1), max(h // f, 1)), interpolation="area")
-    return _imageops.resize(_imageops.gaussian(small, _k(px, side // f)), (w, h), interpolation="linear")
+    return _imageops.shrunk(a, f, lambda small: _imageops.gaussian(small, _k(px, side // f)))
 
 
 def _gather(a: Any, idx: Any) -> Any:

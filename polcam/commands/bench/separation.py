@@ -280,7 +280,7 @@ def _add_train_residual(bsub: Any) -> None:
                          description="Train the learned stage of polarized-residual (unpolarized=\"learned\") on "
                                      "the randomized family's training seeds (polcam.bench.residual_training) and "
                                      "write the weights atomically, with how they were made and what they keep of "
-                                     "a matte grey checker (harm_checks). Weights that fail those checks do not "
+                                     "matte grey checkers and a matte colour chart (harm_checks). Weights that fail those checks do not "
                                      "replace the shipped ones: they go to <out>.rejected.npz and the command "
                                      "exits with status 1.")
     ap.add_argument("--scenes", type=int, default=rt.DEFAULT_SCENES, help=f"training scenes (default {rt.DEFAULT_SCENES})")
