@@ -59,7 +59,7 @@ from polcam.separation._learned_residual import load_weights as _learned_weights
 from polcam.separation._learned_residual import stage_inputs as _learned_inputs
 from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
-from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
+from polcam.separation._residual import _MIN_SINE, coherent_gate, gradient_ratio, highlight_mask, residual_steps
 from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "learned_layer", "DEFAULTS",
@@ -481,11 +481,48 @@ def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], weight: float
     return xp.minimum(diffuse + weight * share * (ic - imin), ic)
 
 
+def _specular_part(removed: Any, body: Any, gx: Any, a_g: Any) -> Any:
+    """The multiple of ``G`` in the removed polarized light once its body-coloured part is set apart, (H, W).
+
+    Polarized light has two colours: a specular reflection's is the illuminant's ``G``, diffuse
+    light's (Fresnel transmission, strongest near occluding contours) the body's own.  The removal
+    ``R`` (H, W, 3, >= 0) is fitted per pixel as ``R = alpha G + beta M`` by least squares, ``M`` the
+    layer it leaves (``body``, the body's colour with whatever unpolarized light is in it):
+
+        [G.G  G.M] [alpha]   [G.R]
+        [G.M  M.M] [beta ] = [M.R],
+
+    and ``max(alpha, 0)`` is the specular part.  Where ``beta < 0`` no body-coloured part is seen
+    (the fit trades one colour against the other) and the removal's projection on ``G``, ``a_g``,
+    stands.  Where ``M``'s colour is within ``asin(_MIN_SINE)`` of ``G``'s (an achromatic body
+    under ``G``: ``det < _MIN_SINE^2 |G|^2 |M|^2``) the two colours are not told apart and the
+    result is unbounded (1e30: the caller's other reading decides).  The fit is on magnitudes, so
+    it is exact where only one of the two is polarized at a pixel; where both are, their AoLPs are
+    perpendicular and they partly cancel, and the caller's ``min`` with its own reading keeps the
+    removal from exceeding what it was.
+    """
+    xp = namespace(removed)
+    m = xp.maximum(body, 0.0)
+    gg = float((gx * gx).sum())
+    gm, mm = sum3(m * gx), sum3(m * m)
+    gr, mr = sum3(removed * gx), sum3(removed * m)
+    det = gg * mm - gm * gm
+    told = det > (_MIN_SINE ** 2) * gg * mm
+    safe = xp.where(told, det, 1.0)
+    alpha = (mm * gr - gm * mr) / safe
+    beta = (gg * mr - gm * gr) / safe
+    alpha = xp.where(beta < 0, a_g, alpha)
+    return xp.where(told, xp.maximum(alpha, 0.0), 1e30)
+
+
 def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent: Any) -> Any:
     """Step 4: what is removed is a multiple of ``G``, between two readings of the removal.
 
     ``a_min``, the largest multiple of ``G`` under every channel's removal, keeps all of the
-    polarized light of the body's colour beyond it (the diffuse light's own); ``a_G``, the
+    polarized light of the body's colour beyond it (the diffuse light's own), and is never more than
+    the specular part of the two-colour fit of the removal (:func:`_specular_part`: polarized light
+    of the body's own colour, such as a uniform surface's diffuse polarization, is not removed as
+    specular light, however much of it lies along ``G`` in every channel); ``a_G``, the
     least-squares projection of the removal on ``G``, reads it all as specular light and is not
     biased low by one channel's demosaicing error at a highlight.  Where coherent polarized light
     marks a highlight (``coherent``, (H, W) in [0, 1]) they are weighed by the image's
@@ -501,8 +538,8 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     """
     xp = namespace(diffuse)
     removed = ic - diffuse
-    a_min = xp.maximum(min3(removed / gx), 0.0)
     a_g = sum3(removed * gx) / float((gx * gx).sum())
+    a_min = xp.minimum(xp.maximum(min3(removed / gx), 0.0), _specular_part(removed, diffuse, gx, a_g))
     a = a_min + coherent * (1.0 - weight) * xp.maximum(a_g - a_min, 0.0)
     one = xp.maximum(ic - a[..., None] * gx, 0.0)
     lo, hi = _PER_CHANNEL_SHARE

@@ -309,19 +309,43 @@ def test_mono_unpolarized_white_kept():
     np.testing.assert_allclose(res.diffuse, d, atol=1e-6)
 
 
-_UNIFORM_POLARIZED_DIFFUSE = pytest.mark.parametrize("opts", [
+_THIN_CONTOUR = pytest.mark.parametrize("opts", [
     {"evidence": True},
     pytest.param({}, marks=pytest.mark.xfail(strict=True, reason=(
-        "default options: the part of a polarized diffuse light common to the three channels in G's "
-        "colour (rho_d min_c D_c) is removed where no edge gives it back and no evidence bound holds it; "
-        "the learned stage, whose bound admits the polarized light seen at a pixel, takes a little more"))),
+        "default options: where coherent polarized light marks a highlight, step 4 weighs in the "
+        "removal's projection on G (a_G), which reads a contour's polarized diffuse light as specular "
+        "where no edge gives it back and no evidence bound holds it; the learned stage, whose bound "
+        "admits the polarized light seen at a pixel, takes a little more"))),
 ])
 
 
-@_UNIFORM_POLARIZED_DIFFUSE
+def test_two_colour_fit_sets_the_body_coloured_polarized_light_apart():
+    # planted removals R = alpha G + beta M (specular of G's colour, diffuse polarization of the body's)
+    rng = np.random.default_rng(3)
+    g = np.array([0.9, 1.0, 1.1])
+    body = rng.uniform(0.05, 0.9, (50, 3))
+    alpha, beta = rng.uniform(0.0, 0.3, 50), rng.uniform(0.0, 0.4, 50)
+    removed = alpha[:, None] * g + beta[:, None] * body
+    a_g = (removed * g).sum(-1) / (g @ g)
+    sine = np.sqrt(1 - ((body @ g) / np.linalg.norm(body, axis=-1) / np.linalg.norm(g)) ** 2)
+    got = pres._specular_part(removed, body, g, a_g)
+    told = sine > 0.2
+    assert told.sum() > 30
+    np.testing.assert_allclose(got[told], alpha[told], atol=1e-9)
+    # the least multiple of G under every channel's removal takes part of the body's colour as specular
+    assert np.all(((removed / g).min(-1) - alpha)[told] > 0)
+    # a body of G's own colour: the two are not told apart, and the fit leaves the decision to the caller
+    assert np.all(got[~told] >= 1e29)
+    # a removal of G's colour alone on a coloured body is all specular
+    red = np.array([[0.8, 0.1, 0.1]])
+    np.testing.assert_allclose(pres._specular_part(0.2 * g[None], red, g, np.array([0.2])), [0.2], atol=1e-9)
+
+
+@pytest.mark.parametrize("opts", [{"evidence": True}, {}])
 def test_polarized_diffuse_without_specular_is_kept(opts):
     # coloured surfaces whose diffuse light is partly polarized (DoLP 0.15, as near an occluding
-    # contour) and no specular light at all: nothing is removed from the coloured patches
+    # contour) and no specular light at all: nothing is removed from the coloured patches (by
+    # default because the removal's colour is the body's: step 4's two-colour fit sets it apart)
     d = _scene()
     st = _stack(d, np.zeros(d.shape[:2]), (1, 1, 1), rho_s=0.0, phi_s=0.3, rho_d=0.15)
     res = polcam.separate(st, method="polarized-residual", illuminant=(1, 1, 1), **opts)
@@ -361,7 +385,7 @@ def test_overexposed_diffuse_surface_is_left_as_measured():
     np.testing.assert_allclose(res.diffuse[30:42, 22:42], st.mean(axis=0)[30:42, 22:42], atol=1e-6)
 
 
-@_UNIFORM_POLARIZED_DIFFUSE
+@_THIN_CONTOUR
 def test_polarized_diffuse_on_a_thin_contour_keeps_its_own_colour(opts):
     # diffuse light polarized only along one-pixel contours (DoLP 0.3, as at an occluding contour)
     # between patches of different colours: the decomposition uses each pixel's own amplitudes, so
