@@ -22,7 +22,7 @@ from polcam.separation._illuminant import SATURATED, plane_basis
 from polcam.separation._polarization_noise import COHERENT_KSIG, noise_reduction, prior_removal
 from polcam.separation.shen13 import cluster_ratios, ratio_specular
 
-__all__ = ["residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
+__all__ = ["MIN_SINE", "residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
 
 #: Where polarized highlights measure k (unpolarized / polarized specular light) below this, the colour
 #: prior is weighted down in proportion: step 2 has already removed almost all of their specular light.
@@ -43,7 +43,7 @@ _ONE_CODE = 1.0 / 255
 _LIGHT_GUARD = 1e-6
 #: The body colour ``e`` is told apart from ``G`` (the two-colour fit is well conditioned) where the sine
 #: of the angle between them exceeds this.
-_MIN_SINE = 0.2
+MIN_SINE = 0.2
 #: What ``G`` alone leaves of a pixel's amplitudes is significant beyond this many times its image median
 #: (the misfit of noise and demosaicing) ...
 _MISFIT_NOISE = 5.0
@@ -163,7 +163,7 @@ def _diffuse_part(v: dict[str, Any], e: Any, a: Any, a_coh: Any) -> tuple[Any, A
     ge = e @ gx
     ee = (e * e).sum(axis=-1)
     det = gg * ee - ge * ge
-    well = det > (_MIN_SINE ** 2) * gg * ee                # e far from G's colour
+    well = det > (MIN_SINE ** 2) * gg * ee                # e far from G's colour
     # the decomposition from the pixel's own amplitudes: smoothing mixes the colours of neighbouring
     # pixels, which near occluding contours (where diffuse polarization is strongest) differ most
     dsafe = xp.where(well, det, 1.0)

@@ -59,7 +59,7 @@ from polcam.separation._learned_residual import load_weights as _learned_weights
 from polcam.separation._learned_residual import stage_inputs as _learned_inputs
 from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
-from polcam.separation._residual import _MIN_SINE, coherent_gate, gradient_ratio, highlight_mask, residual_steps
+from polcam.separation._residual import MIN_SINE, coherent_gate, gradient_ratio, highlight_mask, residual_steps
 from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "learned_layer", "DEFAULTS",
@@ -494,8 +494,8 @@ def _specular_part(removed: Any, body: Any, gx: Any, a_g: Any) -> Any:
 
     and ``max(alpha, 0)`` is the specular part.  Where ``beta < 0`` no body-coloured part is seen
     (the fit trades one colour against the other) and the removal's projection on ``G``, ``a_g``,
-    stands.  Where ``M``'s colour is within ``asin(_MIN_SINE)`` of ``G``'s (an achromatic body
-    under ``G``: ``det < _MIN_SINE^2 |G|^2 |M|^2``) the two colours are not told apart and the
+    stands.  Where ``M``'s colour is within ``asin(MIN_SINE)`` of ``G``'s (an achromatic body
+    under ``G``: ``det < MIN_SINE^2 |G|^2 |M|^2``) the two colours are not told apart and the
     result is unbounded (1e30: the caller's other reading decides).  The fit is on magnitudes, so
     it is exact where only one of the two is polarized at a pixel; where both are, their AoLPs are
     perpendicular and they partly cancel, and the caller's ``min`` with its own reading keeps the
@@ -507,7 +507,7 @@ def _specular_part(removed: Any, body: Any, gx: Any, a_g: Any) -> Any:
     gm, mm = sum3(m * gx), sum3(m * m)
     gr, mr = sum3(removed * gx), sum3(removed * m)
     det = gg * mm - gm * gm
-    told = det > (_MIN_SINE ** 2) * gg * mm
+    told = det > (MIN_SINE ** 2) * gg * mm
     safe = xp.where(told, det, 1.0)
     alpha = (mm * gr - gm * mr) / safe
     beta = (gg * mr - gm * gr) / safe
