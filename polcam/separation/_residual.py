@@ -22,7 +22,7 @@ from polcam.separation._illuminant import SATURATED, plane_basis
 from polcam.separation._polarization_noise import COHERENT_KSIG, noise_reduction, prior_removal
 from polcam.separation.shen13 import cluster_ratios, ratio_specular
 
-__all__ = ["MIN_SINE", "residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
+__all__ = ["MIN_SINE", "two_colour_fit", "residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
 
 #: Where polarized highlights measure k (unpolarized / polarized specular light) below this, the colour
 #: prior is weighted down in proportion: step 2 has already removed almost all of their specular light.
@@ -146,6 +146,18 @@ def _polarized_specular(v: dict[str, Any], opts: dict[str, Any]) -> tuple[Any, A
     return a, ub, resid, a_coh
 
 
+def two_colour_fit(xg: Any, xe: Any, gg: Any, ge: Any, ee: Any, det: Any) -> tuple[Any, Any]:
+    """Least squares ``x = alpha G + beta e`` per pixel, from the dot products alone: ``(alpha, beta)``.
+
+    ``xg = x.G``, ``xe = x.e``, ``gg = G.G``, ``ge = G.e``, ``ee = e.e`` (scalars or (H, W) arrays)
+    and ``det = gg ee - ge^2`` (nonzero where the result is used) solve the normal equations
+
+        [gg  ge] [alpha]   [xg]
+        [ge  ee] [beta ] = [xe].
+    """
+    return (ee * xg - ge * xe) / det, (gg * xe - ge * xg) / det
+
+
 def _diffuse_part(v: dict[str, Any], e: Any, a: Any, a_coh: Any) -> tuple[Any, Any, Any]:
     """Step 2's two-colour fit ``alpha G + beta e``: where a polarized diffuse part of body colour ``e`` is.
 
@@ -169,10 +181,9 @@ def _diffuse_part(v: dict[str, Any], e: Any, a: Any, a_coh: Any) -> tuple[Any, A
     dsafe = xp.where(well, det, 1.0)
 
     def fit(xg: Any, xe: Any) -> tuple[Any, Any, Any]:
-        # per pixel, least squares x = alpha G + beta e from x.G and x.e; and whether the diffuse
-        # colour's term dominates, |beta| |e| > |alpha| |G|
-        al = (ee * xg - ge * xe) / dsafe
-        be = (gg * xe - ge * xg) / dsafe
+        # per pixel, least squares x = alpha G + beta e; and whether the diffuse colour's term
+        # dominates, |beta| |e| > |alpha| |G|
+        al, be = two_colour_fit(xg, xe, gg, ge, ee, dsafe)
         return al, be, abs(be) * xp.sqrt(ee) > abs(al) * np.sqrt(gg)
 
     ga = amp_px @ gx

@@ -59,7 +59,8 @@ from polcam.separation._learned_residual import load_weights as _learned_weights
 from polcam.separation._learned_residual import stage_inputs as _learned_inputs
 from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
-from polcam.separation._residual import MIN_SINE, coherent_gate, gradient_ratio, highlight_mask, residual_steps
+from polcam.separation._residual import (MIN_SINE, coherent_gate, gradient_ratio, highlight_mask, residual_steps,
+                                         two_colour_fit)
 from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "learned_layer", "DEFAULTS",
@@ -508,9 +509,7 @@ def _specular_part(removed: Any, body: Any, gx: Any, a_g: Any) -> Any:
     gr, mr = sum3(removed * gx), sum3(removed * m)
     det = gg * mm - gm * gm
     told = det > (MIN_SINE ** 2) * gg * mm
-    safe = xp.where(told, det, 1.0)
-    alpha = (mm * gr - gm * mr) / safe
-    beta = (gg * mr - gm * gr) / safe
+    alpha, beta = two_colour_fit(gr, mr, gg, gm, mm, xp.where(told, det, 1.0))
     alpha = xp.where(beta < 0, a_g, alpha)
     return xp.where(told, xp.maximum(alpha, 0.0), 1e30)
 
