@@ -59,8 +59,14 @@ from polcam.separation._learned_residual import load_weights as _learned_weights
 from polcam.separation._learned_residual import stage_inputs as _learned_inputs
 from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
-from polcam.separation._residual import (MIN_SINE, coherent_gate, gradient_ratio, highlight_mask, residual_steps,
-                                         two_colour_fit)
+from polcam.separation._residual import (
+    MIN_SINE,
+    coherent_gate,
+    gradient_ratio,
+    highlight_mask,
+    residual_steps,
+    two_colour_fit,
+)
 from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "learned_layer", "DEFAULTS",
