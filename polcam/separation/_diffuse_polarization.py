@@ -1,6 +1,8 @@
-"""Which part of the polarized light is the diffuse light's own: its AoLP against the image's edges.
+"""Which part of the polarized light is the diffuse light's own: its AoLP against the image's edges,
+its colour against the illuminant's.
 
-Used by ``polarized-residual`` (docs/methods/polarized-residual.md, step 3).
+Used by ``polarized-residual`` (docs/methods/polarized-residual.md, step 3); the two-colour fit
+(polarized light as the illuminant's colour plus the body's) by its step 4 and its optional steps.
 """
 
 from __future__ import annotations
@@ -9,8 +11,13 @@ from typing import Any
 
 from polcam import _imageops
 from polcam._xp import namespace
+from polcam.separation._common import sum3
 
-__all__ = ["diffuse_like_share", "edge_axis", "radial_share"]
+__all__ = ["MIN_SINE", "diffuse_like_share", "edge_axis", "radial_share", "specular_part", "two_colour_fit"]
+
+#: The body colour ``e`` is told apart from ``G`` (the two-colour fit is well conditioned) where the sine
+#: of the angle between them exceeds this.
+MIN_SINE = 0.2
 
 
 def radial_share(q: Any, u: Any, axis: tuple[Any, Any, Any]) -> Any:
@@ -108,3 +115,47 @@ def edge_axis(lum: Any, smooth: int) -> tuple[Any, Any, Any]:
     c2 = xp.where(safe, c / xp.where(safe, n, 1.0), 0.0)
     s2 = xp.where(safe, s / xp.where(safe, n, 1.0), 0.0)
     return c2, s2, coh
+
+
+def two_colour_fit(xg: Any, xe: Any, gg: Any, ge: Any, ee: Any, det: Any) -> tuple[Any, Any]:
+    """Least squares ``x = alpha G + beta e`` per pixel, from the dot products alone: ``(alpha, beta)``.
+
+    ``xg = x.G``, ``xe = x.e``, ``gg = G.G``, ``ge = G.e``, ``ee = e.e`` (scalars or (H, W) arrays)
+    and ``det = gg ee - ge^2`` (nonzero where the result is used) solve the normal equations
+
+        [gg  ge] [alpha]   [xg]
+        [ge  ee] [beta ] = [xe].
+    """
+    return (ee * xg - ge * xe) / det, (gg * xe - ge * xg) / det
+
+
+def specular_part(removed: Any, body: Any, gx: Any, a_g: Any) -> Any:
+    """The multiple of ``G`` in the removed polarized light once its body-coloured part is set apart, (H, W).
+
+    Polarized light has two colours: a specular reflection's is the illuminant's ``G``, diffuse
+    light's (Fresnel transmission, strongest near occluding contours) the body's own.  The removal
+    ``R`` (H, W, 3, >= 0) is fitted per pixel as ``R = alpha G + beta M`` by least squares, ``M`` the
+    layer it leaves (``body``, the body's colour with whatever unpolarized light is in it):
+
+        [G.G  G.M] [alpha]   [G.R]
+        [G.M  M.M] [beta ] = [M.R],
+
+    and ``max(alpha, 0)`` is the specular part.  Where ``beta < 0`` no body-coloured part is seen
+    (the fit trades one colour against the other) and the removal's projection on ``G``, ``a_g``,
+    stands.  Where ``M``'s colour is within ``asin(MIN_SINE)`` of ``G``'s (an achromatic body
+    under ``G``: ``det < MIN_SINE^2 |G|^2 |M|^2``) the two colours are not told apart and the
+    result is unbounded (1e30: the caller's other reading decides).  The fit is on magnitudes, so
+    it is exact where only one of the two is polarized at a pixel; where both are, their AoLPs are
+    perpendicular and they partly cancel, and the caller's ``min`` with its own reading keeps the
+    removal from exceeding what it was.
+    """
+    xp = namespace(removed)
+    m = xp.maximum(body, 0.0)
+    gg = float((gx * gx).sum())
+    gm, mm = sum3(m * gx), sum3(m * m)
+    gr, mr = sum3(removed * gx), sum3(removed * m)
+    det = gg * mm - gm * gm
+    told = det > (MIN_SINE ** 2) * gg * mm
+    alpha, beta = two_colour_fit(gr, mr, gg, gm, mm, xp.where(told, det, 1.0))
+    alpha = xp.where(beta < 0, a_g, alpha)
+    return xp.where(told, xp.maximum(alpha, 0.0), 1e30)

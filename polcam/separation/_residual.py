@@ -18,11 +18,12 @@ import numpy as np
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.filters import joint_bilateral
+from polcam.separation._diffuse_polarization import MIN_SINE, two_colour_fit
 from polcam.separation._illuminant import SATURATED, plane_basis
 from polcam.separation._polarization_noise import COHERENT_KSIG, noise_reduction, prior_removal
 from polcam.separation.shen13 import cluster_ratios, ratio_specular
 
-__all__ = ["MIN_SINE", "two_colour_fit", "residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
+__all__ = ["residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
 
 #: Where polarized highlights measure k (unpolarized / polarized specular light) below this, the colour
 #: prior is weighted down in proportion: step 2 has already removed almost all of their specular light.
@@ -41,9 +42,6 @@ _ONE_CODE = 1.0 / 255
 #: Least light (channel sum or norm) by which a colour or share is divided: far below one code value, so
 #: it only keeps black pixels from dividing by zero.
 _LIGHT_GUARD = 1e-6
-#: The body colour ``e`` is told apart from ``G`` (the two-colour fit is well conditioned) where the sine
-#: of the angle between them exceeds this.
-MIN_SINE = 0.2
 #: What ``G`` alone leaves of a pixel's amplitudes is significant beyond this many times its image median
 #: (the misfit of noise and demosaicing) ...
 _MISFIT_NOISE = 5.0
@@ -144,18 +142,6 @@ def _polarized_specular(v: dict[str, Any], opts: dict[str, Any]) -> tuple[Any, A
     a = xp.minimum(a, xp.amin(ic / gx, axis=-1))            # one specular colour: never more than the pixel has
     resid = xp.clip(ic - a[..., None] * gx, 0.0, ub)        # polarized specular light removed
     return a, ub, resid, a_coh
-
-
-def two_colour_fit(xg: Any, xe: Any, gg: Any, ge: Any, ee: Any, det: Any) -> tuple[Any, Any]:
-    """Least squares ``x = alpha G + beta e`` per pixel, from the dot products alone: ``(alpha, beta)``.
-
-    ``xg = x.G``, ``xe = x.e``, ``gg = G.G``, ``ge = G.e``, ``ee = e.e`` (scalars or (H, W) arrays)
-    and ``det = gg ee - ge^2`` (nonzero where the result is used) solve the normal equations
-
-        [gg  ge] [alpha]   [xg]
-        [ge  ee] [beta ] = [xe].
-    """
-    return (ee * xg - ge * xe) / det, (gg * xe - ge * xg) / det
 
 
 def _diffuse_part(v: dict[str, Any], e: Any, a: Any, a_coh: Any) -> tuple[Any, Any, Any]:

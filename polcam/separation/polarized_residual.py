@@ -48,7 +48,7 @@ from polcam._xp import namespace
 from polcam.errors import MethodError
 from polcam.separation._clipping import declipped, fill_clipped_highlights
 from polcam.separation._common import max3, min3, sum3
-from polcam.separation._diffuse_polarization import diffuse_like_share, edge_axis, radial_share
+from polcam.separation._diffuse_polarization import diffuse_like_share, edge_axis, radial_share, specular_part
 from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import EVIDENCE_MEDIAN, peak_excess
 from polcam.separation._illuminant import SATURATED, check_efficiency, estimate_illuminant
@@ -59,14 +59,7 @@ from polcam.separation._learned_residual import load_weights as _learned_weights
 from polcam.separation._learned_residual import stage_inputs as _learned_inputs
 from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
-from polcam.separation._residual import (
-    MIN_SINE,
-    coherent_gate,
-    gradient_ratio,
-    highlight_mask,
-    residual_steps,
-    two_colour_fit,
-)
+from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
 from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "learned_layer", "DEFAULTS",
@@ -488,44 +481,12 @@ def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], weight: float
     return xp.minimum(diffuse + weight * share * (ic - imin), ic)
 
 
-def _specular_part(removed: Any, body: Any, gx: Any, a_g: Any) -> Any:
-    """The multiple of ``G`` in the removed polarized light once its body-coloured part is set apart, (H, W).
-
-    Polarized light has two colours: a specular reflection's is the illuminant's ``G``, diffuse
-    light's (Fresnel transmission, strongest near occluding contours) the body's own.  The removal
-    ``R`` (H, W, 3, >= 0) is fitted per pixel as ``R = alpha G + beta M`` by least squares, ``M`` the
-    layer it leaves (``body``, the body's colour with whatever unpolarized light is in it):
-
-        [G.G  G.M] [alpha]   [G.R]
-        [G.M  M.M] [beta ] = [M.R],
-
-    and ``max(alpha, 0)`` is the specular part.  Where ``beta < 0`` no body-coloured part is seen
-    (the fit trades one colour against the other) and the removal's projection on ``G``, ``a_g``,
-    stands.  Where ``M``'s colour is within ``asin(MIN_SINE)`` of ``G``'s (an achromatic body
-    under ``G``: ``det < MIN_SINE^2 |G|^2 |M|^2``) the two colours are not told apart and the
-    result is unbounded (1e30: the caller's other reading decides).  The fit is on magnitudes, so
-    it is exact where only one of the two is polarized at a pixel; where both are, their AoLPs are
-    perpendicular and they partly cancel, and the caller's ``min`` with its own reading keeps the
-    removal from exceeding what it was.
-    """
-    xp = namespace(removed)
-    m = xp.maximum(body, 0.0)
-    gg = float((gx * gx).sum())
-    gm, mm = sum3(m * gx), sum3(m * m)
-    gr, mr = sum3(removed * gx), sum3(removed * m)
-    det = gg * mm - gm * gm
-    told = det > (MIN_SINE ** 2) * gg * mm
-    alpha, beta = two_colour_fit(gr, mr, gg, gm, mm, xp.where(told, det, 1.0))
-    alpha = xp.where(beta < 0, a_g, alpha)
-    return xp.where(told, xp.maximum(alpha, 0.0), 1e30)
-
-
 def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent: Any) -> Any:
     """Step 4: what is removed is a multiple of ``G``, between two readings of the removal.
 
     ``a_min``, the largest multiple of ``G`` under every channel's removal, keeps all of the
     polarized light of the body's colour beyond it (the diffuse light's own), and is never more than
-    the specular part of the two-colour fit of the removal (:func:`_specular_part`: polarized light
+    the specular part of the two-colour fit of the removal (:func:`polcam.separation._diffuse_polarization.specular_part`: polarized light
     of the body's own colour, such as a uniform surface's diffuse polarization, is not removed as
     specular light, however much of it lies along ``G`` in every channel); ``a_G``, the
     least-squares projection of the removal on ``G``, reads it all as specular light and is not
@@ -544,7 +505,7 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     xp = namespace(diffuse)
     removed = ic - diffuse
     a_g = sum3(removed * gx) / float((gx * gx).sum())
-    a_min = xp.minimum(xp.maximum(min3(removed / gx), 0.0), _specular_part(removed, diffuse, gx, a_g))
+    a_min = xp.minimum(xp.maximum(min3(removed / gx), 0.0), specular_part(removed, diffuse, gx, a_g))
     a = a_min + coherent * (1.0 - weight) * xp.maximum(a_g - a_min, 0.0)
     one = xp.maximum(ic - a[..., None] * gx, 0.0)
     lo, hi = _PER_CHANNEL_SHARE

@@ -319,28 +319,6 @@ _THIN_CONTOUR = pytest.mark.parametrize("opts", [
 ])
 
 
-def test_two_colour_fit_sets_the_body_coloured_polarized_light_apart():
-    # planted removals R = alpha G + beta M (specular of G's colour, diffuse polarization of the body's)
-    rng = np.random.default_rng(3)
-    g = np.array([0.9, 1.0, 1.1])
-    body = rng.uniform(0.05, 0.9, (50, 3))
-    alpha, beta = rng.uniform(0.0, 0.3, 50), rng.uniform(0.0, 0.4, 50)
-    removed = alpha[:, None] * g + beta[:, None] * body
-    a_g = (removed * g).sum(-1) / (g @ g)
-    sine = np.sqrt(1 - ((body @ g) / np.linalg.norm(body, axis=-1) / np.linalg.norm(g)) ** 2)
-    got = pres._specular_part(removed, body, g, a_g)
-    told = sine > 0.2
-    assert told.sum() > 30
-    np.testing.assert_allclose(got[told], alpha[told], atol=1e-9)
-    # the least multiple of G under every channel's removal takes part of the body's colour as specular
-    assert np.all(((removed / g).min(-1) - alpha)[told] > 0)
-    # a body of G's own colour: the two are not told apart, and the fit leaves the decision to the caller
-    assert np.all(got[~told] >= 1e29)
-    # a removal of G's colour alone on a coloured body is all specular
-    red = np.array([[0.8, 0.1, 0.1]])
-    np.testing.assert_allclose(pres._specular_part(0.2 * g[None], red, g, np.array([0.2])), [0.2], atol=1e-9)
-
-
 @pytest.mark.parametrize("opts", [{"evidence": True}, {}])
 def test_polarized_diffuse_without_specular_is_kept(opts):
     # coloured surfaces whose diffuse light is partly polarized (DoLP 0.15, as near an occluding
