@@ -129,7 +129,7 @@ def two_colour_fit(xg: Any, xe: Any, gg: Any, ge: Any, ee: Any, det: Any) -> tup
     return (ee * xg - ge * xe) / det, (gg * xe - ge * xg) / det
 
 
-def specular_part(removed: Any, body: Any, gx: Any, a_g: Any) -> Any:
+def specular_part(removed: Any, body: Any, gx: Any, a_g: Any, *, body_dominant: bool = False) -> Any:
     """The multiple of ``G`` in the removed polarized light once its body-coloured part is set apart, (H, W).
 
     Polarized light has two colours: a specular reflection's is the illuminant's ``G``, diffuse
@@ -147,7 +147,9 @@ def specular_part(removed: Any, body: Any, gx: Any, a_g: Any) -> Any:
     result is unbounded (1e30: the caller's other reading decides).  The fit is on magnitudes, so
     it is exact where only one of the two is polarized at a pixel; where both are, their AoLPs are
     perpendicular and they partly cancel, and the caller's ``min`` with its own reading keeps the
-    removal from exceeding what it was.
+    removal from exceeding what it was.  With ``body_dominant`` it also returns (H, W) bool: where
+    the colours are told apart and the body-coloured term carries more of the removal than the
+    ``G``-coloured one (``beta > 0`` and ``beta |M| > |alpha| |G|``).
     """
     xp = namespace(removed)
     m = xp.maximum(body, 0.0)
@@ -157,5 +159,9 @@ def specular_part(removed: Any, body: Any, gx: Any, a_g: Any) -> Any:
     det = gg * mm - gm * gm
     told = det > (MIN_SINE ** 2) * gg * mm
     alpha, beta = two_colour_fit(gr, mr, gg, gm, mm, xp.where(told, det, 1.0))
-    alpha = xp.where(beta < 0, a_g, alpha)
-    return xp.where(told, xp.maximum(alpha, 0.0), 1e30)
+    spec = xp.where(told, xp.maximum(xp.where(beta < 0, a_g, alpha), 0.0), 1e30)
+    if not body_dominant:
+        return spec
+    # the body-coloured term carries more of the removal than the G-coloured one
+    dominant = told & (beta > 0) & (beta * beta * mm > alpha * alpha * gg)
+    return spec, dominant

@@ -490,7 +490,9 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     of the body's own colour, such as a uniform surface's diffuse polarization, is not removed as
     specular light, however much of it lies along ``G`` in every channel); ``a_G``, the
     least-squares projection of the removal on ``G``, reads it all as specular light and is not
-    biased low by one channel's demosaicing error at a highlight.  Where coherent polarized light
+    biased low by one channel's demosaicing error at a highlight; where the fit's body-coloured
+    term carries more of the removal than its ``G``-coloured one (a contour's polarized diffuse
+    light), ``a_G`` is no more than the fit's specular part either.  Where coherent polarized light
     marks a highlight (``coherent``, (H, W) in [0, 1]) they are weighed by the image's
     diffuse-like share ``weight`` in [0, 1]; elsewhere (noise, a matte surface) ``a_min`` alone:
 
@@ -505,7 +507,9 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     xp = namespace(diffuse)
     removed = ic - diffuse
     a_g = sum3(removed * gx) / float((gx * gx).sum())
-    a_min = xp.minimum(xp.maximum(min3(removed / gx), 0.0), specular_part(removed, diffuse, gx, a_g))
+    spec, dominant = specular_part(removed, diffuse, gx, a_g, body_dominant=True)
+    a_min = xp.minimum(xp.maximum(min3(removed / gx), 0.0), spec)
+    a_g = xp.where(dominant, xp.minimum(a_g, spec), a_g)
     a = a_min + coherent * (1.0 - weight) * xp.maximum(a_g - a_min, 0.0)
     one = xp.maximum(ic - a[..., None] * gx, 0.0)
     lo, hi = _PER_CHANNEL_SHARE

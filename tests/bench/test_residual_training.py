@@ -79,7 +79,7 @@ def test_harm_checks_pass_the_shipped_weights_and_fail_a_greedy_model() -> None:
     # what the evidence bound would let through if the model took all of it: a good part of the
     # 16-pixel squares' light, and of the chart's greys
     assert greedy["checker16_kept"] < 0.9 and greedy["checker16_worst_square"] < 0.7
-    assert greedy["chart_worst_grey"] < 0.96
+    assert greedy["chart_worst_grey"] < 0.96 and greedy["chart_frame_worst_grey"] < 0.96
     failed = rt.failed_checks(greedy)
     assert any(f.startswith("checker16_kept") for f in failed) and any(f.startswith("chart_worst_grey") for f in failed)
 

@@ -62,17 +62,22 @@ def test_diffuse_like_share_without_polarization_on_an_edge():
     assert diffuse_like_share(zero, zero, edge_axis(lum, 5)) == 1.0
 
 
-def test_two_colour_fit_sets_the_body_coloured_polarized_light_apart():
-    # planted removals R = alpha G + beta M (specular of G's colour, diffuse polarization of the body's)
-    rng = np.random.default_rng(3)
-    g = np.array([0.9, 1.0, 1.1])
-    body = rng.uniform(0.05, 0.9, (50, 3))
-    alpha, beta = rng.uniform(0.0, 0.3, 50), rng.uniform(0.0, 0.4, 50)
+def _planted(seed, n, g, beta_max):
+    """Removals ``R = alpha G + beta M`` (specular of G's colour, diffuse polarization of the body's),
+    their projection on G and whether the body's colour is told apart from G's (sine > 0.2)."""
+    rng = np.random.default_rng(seed)
+    body = rng.uniform(0.05, 0.9, (n, 3))
+    alpha, beta = rng.uniform(0.0, 0.3, n), rng.uniform(0.0, beta_max, n)
     removed = alpha[:, None] * g + beta[:, None] * body
     a_g = (removed * g).sum(-1) / (g @ g)
     sine = np.sqrt(1 - ((body @ g) / np.linalg.norm(body, axis=-1) / np.linalg.norm(g)) ** 2)
+    return body, alpha, beta, removed, a_g, sine > 0.2
+
+
+def test_two_colour_fit_sets_the_body_coloured_polarized_light_apart():
+    g = np.array([0.9, 1.0, 1.1])
+    body, alpha, beta, removed, a_g, told = _planted(3, 50, g, 0.4)
     got = specular_part(removed, body, g, a_g)
-    told = sine > 0.2
     assert told.sum() > 30
     np.testing.assert_allclose(got[told], alpha[told], atol=1e-9)
     # the least multiple of G under every channel's removal takes part of the body's colour as specular
@@ -82,3 +87,16 @@ def test_two_colour_fit_sets_the_body_coloured_polarized_light_apart():
     # a removal of G's colour alone on a coloured body is all specular
     red = np.array([[0.8, 0.1, 0.1]])
     np.testing.assert_allclose(specular_part(0.2 * g[None], red, g, np.array([0.2])), [0.2], atol=1e-9)
+
+
+def test_two_colour_fit_says_where_the_body_coloured_part_dominates():
+    # planted removals: the body-coloured term dominates exactly where |beta| |M| > |alpha| |G|
+    g = np.array([1.1, 1.0, 0.9])
+    body, alpha, beta, removed, a_g, told = _planted(4, 200, g, 0.3)
+    spec, dominant = specular_part(removed, body, g, a_g, body_dominant=True)
+    np.testing.assert_array_equal(spec, specular_part(removed, body, g, a_g))
+    planted = told & (beta * np.linalg.norm(body, axis=-1) > alpha * np.linalg.norm(g))
+    assert 20 < planted.sum() < told.sum() - 20
+    np.testing.assert_array_equal(dominant, planted)
+    # colours not told apart: never called dominant (the caller's own reading stands)
+    assert not dominant[~told].any()

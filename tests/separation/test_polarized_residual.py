@@ -309,16 +309,6 @@ def test_mono_unpolarized_white_kept():
     np.testing.assert_allclose(res.diffuse, d, atol=1e-6)
 
 
-_THIN_CONTOUR = pytest.mark.parametrize("opts", [
-    {"evidence": True},
-    pytest.param({}, marks=pytest.mark.xfail(strict=True, reason=(
-        "default options: where coherent polarized light marks a highlight, step 4 weighs in the "
-        "removal's projection on G (a_G), which reads a contour's polarized diffuse light as specular "
-        "where no edge gives it back and no evidence bound holds it; the learned stage, whose bound "
-        "admits the polarized light seen at a pixel, takes a little more"))),
-])
-
-
 @pytest.mark.parametrize("opts", [{"evidence": True}, {}])
 def test_polarized_diffuse_without_specular_is_kept(opts):
     # coloured surfaces whose diffuse light is partly polarized (DoLP 0.15, as near an occluding
@@ -363,11 +353,13 @@ def test_overexposed_diffuse_surface_is_left_as_measured():
     np.testing.assert_allclose(res.diffuse[30:42, 22:42], st.mean(axis=0)[30:42, 22:42], atol=1e-6)
 
 
-@_THIN_CONTOUR
+@pytest.mark.parametrize("opts", [{"evidence": True}, {}])
 def test_polarized_diffuse_on_a_thin_contour_keeps_its_own_colour(opts):
     # diffuse light polarized only along one-pixel contours (DoLP 0.3, as at an occluding contour)
     # between patches of different colours: the decomposition uses each pixel's own amplitudes, so
-    # the smoothing of the polarization axis does not mix the neighbours' colours into it
+    # the smoothing of the polarization axis does not mix the neighbours' colours into it; and
+    # where the highlight's coherent polarization reaches them, step 4 reads the body-coloured
+    # removal as diffuse (its projection on G is capped at the two-colour fit's specular part)
     d = _scene()
     h, w = d.shape[:2]
     rho = np.zeros((h, w))
