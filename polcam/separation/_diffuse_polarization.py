@@ -13,7 +13,8 @@ from polcam import _imageops
 from polcam._xp import namespace
 from polcam.separation._common import sum3
 
-__all__ = ["MIN_SINE", "diffuse_like_share", "edge_axis", "radial_share", "specular_part", "two_colour_fit"]
+__all__ = ["MIN_SINE", "body_dominates", "diffuse_like_share", "edge_axis", "radial_share", "specular_part",
+           "two_colour_fit"]
 
 #: The body colour ``e`` is told apart from ``G`` (the two-colour fit is well conditioned) where the sine
 #: of the angle between them exceeds this.
@@ -129,6 +130,15 @@ def two_colour_fit(xg: Any, xe: Any, gg: Any, ge: Any, ee: Any, det: Any) -> tup
     return (ee * xg - ge * xe) / det, (gg * xe - ge * xg) / det
 
 
+def body_dominates(alpha: Any, beta: Any, gg: float, ee: Any) -> Any:
+    """Where the fit's body-coloured term carries more of ``x`` than its ``G``-coloured one: ``|beta| |e| > |alpha| |G|``.
+
+    ``alpha``, ``beta`` from :func:`two_colour_fit`, ``gg = G.G`` and ``ee = e.e``; (H, W) bool.
+    """
+    xp = namespace(beta)
+    return abs(beta) * xp.sqrt(ee) > abs(alpha) * gg ** 0.5
+
+
 def specular_part(removed: Any, body: Any, gx: Any, a_g: Any, *, body_dominant: bool = False) -> Any:
     """The multiple of ``G`` in the removed polarized light once its body-coloured part is set apart, (H, W).
 
@@ -162,6 +172,4 @@ def specular_part(removed: Any, body: Any, gx: Any, a_g: Any, *, body_dominant: 
     spec = xp.where(told, xp.maximum(xp.where(beta < 0, a_g, alpha), 0.0), 1e30)
     if not body_dominant:
         return spec
-    # the body-coloured term carries more of the removal than the G-coloured one
-    dominant = told & (beta > 0) & (beta * beta * mm > alpha * alpha * gg)
-    return spec, dominant
+    return spec, told & (beta > 0) & body_dominates(alpha, beta, gg, mm)

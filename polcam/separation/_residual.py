@@ -18,7 +18,7 @@ import numpy as np
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.filters import joint_bilateral
-from polcam.separation._diffuse_polarization import MIN_SINE, two_colour_fit
+from polcam.separation._diffuse_polarization import MIN_SINE, body_dominates, two_colour_fit
 from polcam.separation._illuminant import SATURATED, plane_basis
 from polcam.separation._polarization_noise import COHERENT_KSIG, noise_reduction, prior_removal
 from polcam.separation.shen13 import cluster_ratios, ratio_specular
@@ -170,7 +170,7 @@ def _diffuse_part(v: dict[str, Any], e: Any, a: Any, a_coh: Any) -> tuple[Any, A
         # per pixel, least squares x = alpha G + beta e; and whether the diffuse colour's term
         # dominates, |beta| |e| > |alpha| |G|
         al, be = two_colour_fit(xg, xe, gg, ge, ee, dsafe)
-        return al, be, abs(be) * xp.sqrt(ee) > abs(al) * np.sqrt(gg)
+        return al, be, body_dominates(al, be, gg, ee)
 
     ga = amp_px @ gx
     al, be, dom = fit(ga, (amp_px * e).sum(axis=-1))
