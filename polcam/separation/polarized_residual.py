@@ -57,7 +57,7 @@ from polcam.separation._learned_residual import WEIGHTS_FILE as LEARNED_WEIGHTS
 from polcam.separation._learned_residual import apply as _learned_apply
 from polcam.separation._learned_residual import load_weights as _learned_weights
 from polcam.separation._learned_residual import stage_inputs as _learned_inputs
-from polcam.separation._polarization_noise import axis_debias, noise_reduction, stokes_noise
+from polcam.separation._polarization_noise import aliasing_deviation, axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
 from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
 from polcam.separation.tensor.torch_backend import check_device
@@ -451,12 +451,13 @@ def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]
     s2 = xp.where(safe, uu / xp.where(safe, nn, 1.0), 0.0)[..., None]
     amp = qs * c2 + us * s2                                 # (H, W, 3) signed
     amp_px = q * c2 + u * s2                                # the same, unsmoothed (the pixel's own colours)
-    # the polarized amplitude with the noise's bias removed: unbiased along the axis where the smoothed
-    # amplitude fixes it, shrunk by the noise elsewhere (_polarization_noise.axis_debias)
+    # the polarized amplitude with the bias of the noise and of the demosaicing's aliasing at edges
+    # removed: along the axis where the smoothed amplitude fixes it, shrunk elsewhere
+    # (_polarization_noise.axis_debias, aliasing_deviation)
     if opts["noise"] == "off":
         isv = xp.hypot(q, u)
     else:
-        isv = axis_debias(q, u, c2, s2, amp, sig, noise_reduction(k_small), opts["noise"])
+        isv = axis_debias(q, u, c2, s2, amp, sig, noise_reduction(k_small), opts["noise"], aliasing_deviation(ic))
     imin = xp.maximum(ic - isv, 0.0)
     # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
     # colour demosaicing's polarization errors differ between channels and partly cancel in it

@@ -1,4 +1,4 @@
-"""polcam.separation._polarization_noise: the garrotes that shrink what noise explains, and the axis that spares a coherent amplitude."""
+"""polcam.separation._polarization_noise: the garrotes that shrink what noise and aliasing explain, the axis that spares a coherent amplitude, and the aliasing of the default demosaicing."""
 
 from __future__ import annotations
 
@@ -6,7 +6,20 @@ import cv2
 import numpy as np
 import pytest
 
-from polcam.separation._polarization_noise import _KSIG, _debias, axis_debias, noise_reduction, prior_removal
+import polcam
+from polcam.demosaicing import mosaic_stack
+from polcam.polarimetry import synthesize
+from polcam.separation._polarization_noise import (
+    _KSIG,
+    ALIASING,
+    ALIASING_WINDOW,
+    _debias,
+    aliasing_deviation,
+    axis_debias,
+    noise_reduction,
+    prior_removal,
+)
+from polcam.synth.photos import load_photo
 
 
 def test_colour_prior_removal_is_shrunk_by_the_noise():
@@ -136,3 +149,58 @@ def test_axis_and_coherence_switches_are_continuous():
     outs = np.array(outs)
     assert outs[0] < 0.8 and outs[-1] == pytest.approx(1.0, abs=1e-5)
     assert np.abs(np.diff(outs)).max() < 0.05
+
+
+def _unpolarized_camera(rgb: np.ndarray) -> np.ndarray:
+    """Unpolarized light ``rgb`` through the IMX250MYR mosaic and the default demosaicing, without noise."""
+    zero = np.zeros_like(rgb)
+    raw = mosaic_stack(np.clip(synthesize(rgb, zero, zero), 0.0, 1.0), layout="imx250myr")
+    return np.clip(polcam.demosaic(raw, layout="imx250myr"), 0.0, 1.0).astype(np.float32)
+
+
+def test_aliasing_is_the_default_demosaicings():
+    # an unpolarized photograph has q = u = 0: what the camera gives is the mosaic's aliasing, and its
+    # RMS over C Ic (C the local log contrast) is the constant the deviation is built on; 0.061 when
+    # measured over 12 crops of the four training photographs (docs/methods/polarized-residual.md)
+    ratios = []
+    for name, (y, x) in (("astronaut", (80, 120)), ("rocket", (150, 200)), ("astronaut", (300, 250))):
+        rgb = load_photo(name)[y:y + 160, x:x + 160] * 0.8
+        cam = _unpolarized_camera(rgb)
+        ic = cam.mean(axis=0)
+        dev = np.asarray(aliasing_deviation(ic))
+        q, u = 0.5 * (cam[0] - cam[2]), 0.5 * (cam[1] - cam[3])
+        inner = (slice(8, -8), slice(8, -8))
+        keep = (dev[inner] > 0.1 * ALIASING * ic[inner]) & (ic[inner] > 0.03)   # C > 0.1, lit
+        d = dev[inner][keep] / ALIASING                     # C Ic
+        ratios += [q[inner][keep] / d, u[inner][keep] / d]
+    rms = float(np.sqrt(np.mean(np.concatenate(ratios) ** 2)))
+    assert 0.8 * ALIASING <= rms <= 1.25 * ALIASING, rms
+
+
+def test_aliasing_deviation_is_zero_on_flat_light_and_grows_with_the_edge():
+    ic = np.full((40, 40, 3), 0.3, np.float32)
+    assert np.all(np.asarray(aliasing_deviation(ic)) == 0)
+    for ratio in (2.0, 8.0):
+        step = ic.copy()
+        step[:, 20:] *= ratio
+        dev = np.asarray(aliasing_deviation(step))
+        # the pixel beside the step, and the pixels beyond the window on either side
+        assert dev[10, 20, 0] == pytest.approx(ALIASING * np.log(ratio) * step[10, 20, 0], rel=1e-5)
+        assert np.all(dev[:, :20 - ALIASING_WINDOW // 2 - 1] == 0) and np.all(dev[:, 21 + ALIASING_WINDOW // 2:] == 0)
+
+
+def test_aliasing_shrinks_what_is_not_coherent_and_spares_a_coherent_amplitude():
+    # where the axis is known (a coherent amplitude far above the noise) the parallel part is kept
+    # whatever the aliasing; where it is not (noise-like polarization), the aliasing's deviation
+    # shrinks the amplitude further
+    sig = 0.002
+    q, u = _noisy_stokes(0.2, sig)
+    c2, s2, amp, red = _smoothed_axis(q, u)
+    alias = np.full(q.shape, 0.05, np.float32)
+    coherent = axis_debias(q, u, c2, s2, amp, np.full(q.shape, sig, np.float32), red, "shrink", alias)
+    assert abs(float(np.mean(coherent)) - 0.2) < 0.01
+    q, u = _noisy_stokes(0.0, 0.03, seed=1)
+    c2, s2, amp, red = _smoothed_axis(q, u)
+    plain = axis_debias(q, u, c2, s2, amp, np.full(q.shape, 0.03, np.float32), red, "shrink")
+    with_alias = axis_debias(q, u, c2, s2, amp, np.full(q.shape, 0.03, np.float32), red, "shrink", alias)
+    assert float(np.mean(with_alias)) < 0.5 * float(np.mean(plain))
