@@ -87,6 +87,7 @@ DEFAULTS: dict[str, Any] = {
                                  # the diffuse) or "measured" (steps of _residual: one specular colour, k from
                                  # coloured highlights, colour prior)
     "edge_fit": 1,               # demosaicing's polarization at edges fitted and removed: 0 (off), 1 or 2 (order)
+    "aliasing": True,            # count the demosaicing's aliasing as noise in step 2 (False for stacks not from a mosaic)
     "edge_polarization": True,   # give back the polarized light along the local edge normal (_diffuse_polarization)
     "one_colour": True,          # remove only a multiple of the illuminant's colour G
     "evidence": False,            # bound the removal by the pixel's rise above its surroundings (_highlight)
@@ -129,7 +130,7 @@ def _check(opts: dict[str, Any]) -> None:
     mr = opts["max_ratio"]
     if isinstance(mr, bool) or not isinstance(mr, (int, float, np.floating)) or not 0 <= float(mr) < 1e3:
         raise MethodError(f"polarized-residual: max_ratio={mr!r}: expected a number in [0, 1000)")
-    for k in ("declip", "diffuse_polarization", "evidence", "one_colour", "edge_polarization"):
+    for k in ("declip", "diffuse_polarization", "evidence", "one_colour", "edge_polarization", "aliasing"):
         if not isinstance(opts[k], (bool, np.bool_)):
             raise MethodError(f"polarized-residual: {k}={opts[k]!r}: expected True or False")
     if opts["noise"] not in ("off", "rice", "shrink", "thresh"):
@@ -171,8 +172,9 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         ``"cuda"``: the same code on that device, the result back as numpy), ``illuminant`` (RGB or None), ``efficiency``
         ((3,) per-colour polarizer efficiency in (0, 1] or None), ``noise`` (how the polarized
         amplitude's noise bias is removed), ``declip`` (rebuild clipped samples), ``edge_fit``
-        (0, 1 or 2: demosaicing's edge polarization fitted to that order and removed),
-        ``edge_polarization`` (give back the polarized light along the local edge normal),
+        (0, 1 or 2: demosaicing's edge polarization fitted to that order and removed), ``aliasing``
+        (count the demosaicing's aliasing as noise in step 2; False for a stack not interpolated
+        from a polarization mosaic), ``edge_polarization`` (give back the polarized light along the local edge normal),
         ``one_colour`` (remove only a multiple of ``G``), ``evidence`` and ``evidence_window``
         (bound the removal by the rise above the surroundings), ``unpolarized`` ("learned", the
         default: the learned stage; "none"; or "measured": the optional steps, with
@@ -457,7 +459,8 @@ def _polarization_minimum(s: Any, gx: Any, eff: np.ndarray, opts: dict[str, Any]
     if opts["noise"] == "off":
         isv = xp.hypot(q, u)
     else:
-        isv = axis_debias(q, u, c2, s2, amp, sig, noise_reduction(k_small), opts["noise"], aliasing_deviation(ic))
+        alias = aliasing_deviation(ic) if opts["aliasing"] else None
+        isv = axis_debias(q, u, c2, s2, amp, sig, noise_reduction(k_small), opts["noise"], alias)
     imin = xp.maximum(ic - isv, 0.0)
     # in units of G: the G-normalised channel sum is 3 a for a G-coloured polarized specular, while
     # colour demosaicing's polarization errors differ between channels and partly cancel in it
