@@ -28,7 +28,7 @@ COHERENT_KSIG = 4.0
 #: u deviate from 0 by this many times ``C Ic`` (RMS), ``C`` the local log contrast of the intensity
 #: (:func:`aliasing_deviation`).  Measured for the default demosaicing on crops of the training
 #: photographs through the IMX250MYR mosaic, without noise: 0.061 over the pixels with ``C > 0.1``
-#: (0.05-0.08 in each band of ``C`` from 0.05 to 1.2); tests/separation/test_polarization_noise.py
+#: (0.05-0.08 in each band of ``C`` from 0.05 to 1.2); tests/separation/test__polarization_noise.py
 #: measures it again.
 ALIASING = 0.06
 #: Side of the window of that local contrast, in pixels: the demosaicing's support (the 4 x 4

@@ -173,10 +173,11 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         ((3,) per-colour polarizer efficiency in (0, 1] or None), ``noise`` (how the polarized
         amplitude's noise bias is removed), ``declip`` (rebuild clipped samples), ``edge_fit``
         (0, 1 or 2: demosaicing's edge polarization fitted to that order and removed), ``aliasing``
-        (count the demosaicing's aliasing as noise in step 2; False for a stack not interpolated
-        from a polarization mosaic), ``edge_polarization`` (give back the polarized light along the local edge normal),
-        ``one_colour`` (remove only a multiple of ``G``), ``evidence`` and ``evidence_window``
-        (bound the removal by the rise above the surroundings), ``unpolarized`` ("learned", the
+        (colour stacks: count the demosaicing's aliasing as noise in step 2; False for a stack
+        not interpolated from a polarization mosaic), ``edge_polarization`` (give back the
+        polarized light along the local edge normal), ``one_colour`` (remove only a multiple of
+        ``G``), ``evidence`` and ``evidence_window`` (bound the removal by the rise above the
+        surroundings), ``unpolarized`` ("learned", the
         default: the learned stage; "none"; or "measured": the optional steps, with
         ``diffuse_polarization``, ``context``, ``hue_bins``, ``min_saturation``, ``max_ratio``,
         ``residual_model``), ``polarized_threshold``.
