@@ -13,7 +13,7 @@ import numpy as np
 
 from polcam import _imageops
 from polcam._xp import namespace
-from polcam.separation._common import max3, sum3
+from polcam.separation._common import LIT, max3, sum3
 from polcam.separation._illuminant import SATURATED
 
 __all__ = ["declipped", "fill_clipped_highlights", "smooth_fill"]
@@ -158,7 +158,7 @@ def _material_colour(px: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, float, 
     distance of theirs from it (inf for fewer than 4 lit pixels), and the weights ((N,) in [0, 1]).
     """
     tot = px.sum(axis=-1)
-    lit = tot > 3.0 / 255
+    lit = tot > LIT
     wts = np.zeros(px.shape[0])
     if int(lit.sum()) < 4:
         return np.full(3, 1.0 / 3.0), float("inf"), wts

@@ -39,6 +39,7 @@ from polcam.errors import MethodError
 
 __all__ = [
     "EPS",
+    "LIT",
     "as_rgb_image",
     "channel_max",
     "channel_min",
@@ -58,6 +59,9 @@ __all__ = [
 
 #: Denominators at or below this magnitude count as zero.
 EPS = 1e-10
+#: Least channel sum that is lit: three code values.  Under it a pixel has no measurable hue or
+#: contrast (its chromaticity is that of rounding noise).
+LIT = 3.0 / 255
 
 
 def as_rgb_image(image: Any, *, method: str = "") -> np.ndarray:

@@ -17,6 +17,7 @@ import numpy as np
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.errors import MethodError
+from polcam.separation._common import LIT
 from polcam.separation._illuminant import SATURATED
 
 #: Noise deviations at which the non-negative garrote of the polarized amplitude (``noise="shrink"``) sets in.
@@ -34,8 +35,6 @@ ALIASING = 0.06
 #: Side of the window of that local contrast, in pixels: the demosaicing's support (the 4 x 4
 #: colour-polarization period and the interpolation around it).
 ALIASING_WINDOW = 9
-#: Least channel sum the local contrast divides by (three code values): below it, no measurable contrast.
-_DARK = 3.0 / 255
 
 
 def stokes_noise(stack: Any, ic: Any) -> Any:
@@ -86,7 +85,7 @@ def aliasing_deviation(ic: Any) -> Any:
     ``ic`` is (H, W, C) float32 (numpy or torch), the mean over the angles.
     """
     xp = namespace(ic)
-    light = xp.maximum(ic.sum(axis=-1), _DARK)
+    light = xp.maximum(ic.sum(axis=-1), LIT)   # no measurable contrast under LIT
     k = min(ALIASING_WINDOW, *[d | 1 for d in light.shape])
     contrast = xp.log(_imageops.dilate(light, k) / _imageops.erode(light, k))
     return xp.astype(ALIASING * contrast[..., None] * ic, xp.float32)

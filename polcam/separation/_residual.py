@@ -18,6 +18,7 @@ import numpy as np
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.filters import joint_bilateral
+from polcam.separation._common import LIT
 from polcam.separation._diffuse_polarization import MIN_SINE, body_dominates, two_colour_fit
 from polcam.separation._illuminant import SATURATED, plane_basis
 from polcam.separation._polarization_noise import COHERENT_KSIG, noise_reduction, prior_removal
@@ -47,9 +48,6 @@ _LIGHT_GUARD = 1e-6
 _MISFIT_NOISE = 5.0
 #: ... and beyond this share of the pixel's intensity (and one code value).
 _MISFIT_SHARE = 0.01
-#: A residual under three code values (channel sum) has no measurable hue: such a pixel lends no
-#: saturation to a hue (its hue is that of rounding noise, ~1e-11, and would move under 1e-7 of input).
-_LIT = 3.0 / 255
 #: Sides of the median filters of the residual's saturation: the wider gives each hue's most saturated
 #: residual nearby, the narrower the pixel's own; medians are robust to colour noise without mixing the
 #: colours of neighbouring materials.
@@ -229,7 +227,9 @@ def _residual_colour(resid: Any, g: np.ndarray, gx: Any, opts: dict[str, Any], k
     xp = namespace(resid)
     h, w = resid.shape[:2]
     rsum = resid.sum(axis=-1)
-    lit = rsum > _LIT
+    # a residual under LIT has no measurable hue: such a pixel lends no saturation to a hue (its hue
+    # is that of rounding noise, ~1e-11, and would move under 1e-7 of input)
+    lit = rsum > LIT
     chroma = resid / xp.maximum(rsum, _LIGHT_GUARD)[..., None]
     v = (chroma - gx / g.sum()) @ xp.asarray(plane_basis().T.astype(np.float32), like=resid)  # (H, W, 2)
     sat = xp.astype(xp.hypot(v[..., 0], v[..., 1]), xp.float32)
