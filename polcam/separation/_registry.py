@@ -110,7 +110,7 @@ REGISTRY: Registry[MethodSpec] = Registry(
     "separation method",
     order=("polarized-residual", "tensor", "tensor-tau", "tensor-plain", "imin", "wen21", "tan05", "yoon06",
            "shen08", "shen09", "yang10", "shen13", "akashi16", "yamamoto19"),
-    defaults={"stack": "wen21", "mono-stack": "imin", "image": "yang10"},
+    defaults={"stack": "wen21", "mono-stack": "polarized-residual", "image": "yang10"},
     plugins="polcam.separation",
 )
 

@@ -6,7 +6,8 @@ colour, its coherent gate, the ratio ``k`` of unpolarized to polarized specular 
 coloured highlights, and Shen & Zheng's colour prior on the residual.  They are off by default:
 on the randomized family's validation split each of them lowers the mean object PSNR
 (docs/methods/polarized-residual.md gives the figures).
-The coherent gate (:func:`coherent_gate`) is used by every path.
+The coherent gate (:func:`coherent_gate`) is used by every path.  Mono stacks with
+``unpolarized="measured"`` take :func:`mono_steps` (k from the gradients, no colour).
 """
 
 from __future__ import annotations
@@ -18,13 +19,14 @@ import numpy as np
 from polcam import _imageops
 from polcam._xp import namespace
 from polcam.filters import joint_bilateral
+from polcam.separation._clipping import declipped
 from polcam.separation._common import LIT
 from polcam.separation._diffuse_polarization import MIN_SINE, body_dominates, two_colour_fit
 from polcam.separation._illuminant import SATURATED, plane_basis
 from polcam.separation._polarization_noise import COHERENT_KSIG, noise_reduction, prior_removal
 from polcam.separation.shen13 import cluster_ratios, ratio_specular
 
-__all__ = ["residual_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
+__all__ = ["residual_steps", "mono_steps", "coherent_gate", "gradient_ratio", "highlight_mask"]
 
 #: Where polarized highlights measure k (unpolarized / polarized specular light) below this, the colour
 #: prior is weighted down in proportion: step 2 has already removed almost all of their specular light.
@@ -419,3 +421,34 @@ def gradient_ratio(imin: Any, a_pix: Any, max_ratio: float) -> float:
     order = xp.argsort(rr)
     cw = xp.cumsum(ww[order])
     return float(np.clip(float(rr[order][xp.searchsorted(cw, 0.5 * cw[-1])]), 0.0, max_ratio))
+
+
+def mono_steps(stack: Any, opts: dict[str, Any], k_small: int,
+               keep: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+    """Mono stacks with ``unpolarized="measured"``: remove the polarized light, then k times the coherent polarized light.
+
+    Without colour, k (the unpolarized / polarized ratio of the specular light) is chosen so that the
+    diffuse layer ``Imin - k a`` carries as little of the highlights' spatial profile as possible:
+    the weighted median of the gradient ratios ``grad Imin / grad a`` (:func:`gradient_ratio`;
+    docs/methods/polarized-residual.md), clipped to [0, ``opts["max_ratio"]``].  ``stack`` is
+    (4, H, W) float32, numpy or torch; ``k_small`` the coherent polarization's Gaussian kernel side.
+    Returns the layer ((H, W) float32) and ``info``; ``keep`` (a dict) receives ``imin``.
+    """
+    xp = namespace(stack)
+    s = stack
+    measured = s.mean(axis=0)
+    if opts["declip"]:
+        s = declipped(s[..., None])[..., 0]
+    ic = s.mean(axis=0)
+    q = 0.5 * (s[0] - s[2])
+    u = 0.5 * (s[1] - s[3])
+    isv = xp.hypot(q, u)
+    imin = xp.maximum(ic - isv, 0.0)
+    a_coh = xp.hypot(_imageops.gaussian(q, k_small), _imageops.gaussian(u, k_small))
+    floor, a_eff, _, gate = coherent_gate(a_coh, ic, k_small, float(opts["polarized_threshold"]))
+    a_pix = xp.astype(xp.minimum(a_eff, isv) * gate, xp.float32)
+    ratio = gradient_ratio(imin, a_pix, float(opts["max_ratio"]))
+    diffuse = xp.clip(imin - ratio * a_pix, 0.0, xp.minimum(imin, measured))
+    if keep is not None:
+        keep["imin"] = xp.astype(imin, xp.float32)
+    return xp.astype(diffuse, xp.float32), {"residual_ratio": ratio, "polarized_floor": floor}

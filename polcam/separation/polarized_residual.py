@@ -30,6 +30,9 @@ validation sweeps behind every choice):
   smoothly with their own material's colour only when their border is a
   highlight of one material; otherwise left as measured and counted in ``info``
   (:func:`polcam.separation._clipping.fill_clipped_highlights`).
+* A mono stack is a colour stack of three equal channels under a white illuminant: the
+  same steps run on it, except that clipped regions are left as measured (a grey border
+  cannot show which material lies under them).
 
 One implementation for numpy and PyTorch: the array code runs over :mod:`polcam._xp`, the
 neighbourhood filters are :mod:`polcam._imageops` (OpenCV for numpy, the same kernels on a torch
@@ -59,7 +62,7 @@ from polcam.separation._learned_residual import load_weights as _learned_weights
 from polcam.separation._learned_residual import stage_inputs as _learned_inputs
 from polcam.separation._polarization_noise import aliasing_deviation, axis_debias, noise_reduction, stokes_noise
 from polcam.separation._registry import register
-from polcam.separation._residual import coherent_gate, gradient_ratio, highlight_mask, residual_steps
+from polcam.separation._residual import highlight_mask, mono_steps, residual_steps
 from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "learned_layer", "DEFAULTS",
@@ -173,27 +176,29 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         ((3,) per-colour polarizer efficiency in (0, 1] or None), ``noise`` (how the polarized
         amplitude's noise bias is removed), ``declip`` (rebuild clipped samples), ``edge_fit``
         (0, 1 or 2: demosaicing's edge polarization fitted to that order and removed), ``aliasing``
-        (colour stacks: count the demosaicing's aliasing as noise in step 2; False for a stack
+        (count the demosaicing's aliasing as noise in step 2; False for a stack
         not interpolated from a polarization mosaic), ``edge_polarization`` (give back the
         polarized light along the local edge normal), ``one_colour`` (remove only a multiple of
         ``G``), ``evidence`` and ``evidence_window`` (bound the removal by the rise above the
         surroundings), ``unpolarized`` ("learned", the
         default: the learned stage; "none"; or "measured": the optional steps, with
         ``diffuse_polarization``, ``context``, ``hue_bins``, ``min_saturation``, ``max_ratio``,
-        ``residual_model``), ``polarized_threshold``.
+        ``residual_model``), ``polarized_threshold``.  A mono stack runs the colour path on the
+        stack as a grey one (``illuminant`` and ``efficiency`` ignored; clipped regions left as
+        measured; docs/methods/polarized-residual.md, "Mono stacks").
 
     Returns
     -------
     diffuse : numpy.ndarray or torch.Tensor
         (H, W, 3) (or (H, W)) float32 in [0, mean over angles]; a tensor for a tensor stack.
     info : dict
-        ``illuminant`` (RGB, mean 1), ``illuminant_source``, ``efficiency``, ``clipped_pixels``,
+        ``illuminant`` (RGB, mean 1), ``illuminant_source``, ``efficiency`` (colour stacks), ``clipped_pixels``,
         ``clipped_filled``, ``clipped_as_measured`` (pixels with a channel clipped at all four
         angles, and how they were treated), ``residual_ratio`` (unpolarized / polarized specular
-        light; 0 unless ``unpolarized="measured"``); for colour stacks ``diffuse_like_share`` (in
-        [0, 1]: how much of the edge-coherent polarization follows the edges, the weight of steps 3
-        and 4) and, with ``unpolarized="learned"``, ``learned_specular`` (the share of the layer's
-        light the learned stage removed, in [0, 1]).
+        light; 0 unless ``unpolarized="measured"``); unless ``unpolarized="measured"`` on a mono
+        stack, ``diffuse_like_share`` (in [0, 1]: how much of the edge-coherent polarization follows
+        the edges, the weight of steps 3 and 4) and, with ``unpolarized="learned"``,
+        ``learned_specular`` (the share of the layer's light the learned stage removed, in [0, 1]).
     """
     return _separate(stack, options, None)
 
@@ -308,12 +313,13 @@ def _on_device(stack: Any, device: str | None) -> tuple[Any, bool]:
 
 
 def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
-            inputs: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+            inputs: dict[str, Any] | None = None, *, colour_seen: bool = True) -> tuple[Any, dict[str, Any]]:
     """The colour path of :func:`_separate` on a (4, H, W, 3) float32 stack (numpy or torch).
 
     Steps 0-7 of docs/methods/polarized-residual.md ("Colour stacks, as implemented"), one function
     each; with ``unpolarized="measured"`` :func:`polcam.separation._residual.residual_steps` takes the
-    place of steps 2 and 4.
+    place of steps 2 and 4.  ``colour_seen=False`` (a mono stack as a grey one): the clipped
+    regions' fill, which needs the border's colour to tell one material, leaves them as measured.
     """
     xp = namespace(s)
     measured = s.mean(axis=0)
@@ -350,8 +356,8 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
         diffuse = _highlight_evidence(diffuse, ic, gx, window=_odd(float(opts["evidence_window"]) * v["side"]))
     if keep is not None:
         keep["evidence_bounded"] = xp.astype(diffuse, xp.float32)
-    diffuse, clip_stats = _clipped_highlights(diffuse, measured, ic, spec, gx,
-                                              removed_share=opts["unpolarized"] != "measured")
+    diffuse, clip_stats = _clipped_highlights(diffuse, measured, ic, spec if colour_seen else 0.0 * lum, gx,
+                                              removed_share=colour_seen and opts["unpolarized"] != "measured")
     info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor, "diffuse_like_share": share}
@@ -564,32 +570,26 @@ def _within_measured(diffuse: Any, measured: Any, gx: Any) -> Any:
 
 
 def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
-    """Mono stacks: remove the polarized light, then k times the coherent polarized light.
+    """Mono stacks ((4, H, W) float32, numpy or torch): the colour path on the stack as a grey one.
 
-    Without colour, k (the unpolarized / polarized ratio of the specular light) is chosen so that the
-    diffuse layer ``Imin - k a`` carries as little of the highlights' spatial profile as possible:
-    the weighted median of the gradient ratios ``grad Imin / grad a``
-    (:func:`polcam.separation._residual.gradient_ratio`; docs/methods/polarized-residual.md),
-    clipped to [0, max_ratio].  ``stack`` is
-    (4, H, W) float32, numpy or torch.
+    A mono sensor is a colour sensor whose three channels see the same light: the stack is taken
+    as (4, H, W, 3) with equal channels and the illuminant ``G = (1, 1, 1)`` (exact: every colour
+    is the illuminant's), so steps 0-7 run unchanged and their colour tests pass on every pixel,
+    except the clipped regions' fill: without colour the border cannot show that one material lies
+    under the clipping, so they are left as measured (counted in ``info``).  The layer is the
+    channels' mean.  ``illuminant`` and ``efficiency`` do not apply and are
+    ignored, and ``info`` carries no illuminant.  With ``unpolarized="measured"``,
+    :func:`polcam.separation._residual.mono_steps`.
     """
+    if opts["unpolarized"] == "measured":
+        return mono_steps(stack, opts, _coherent_kernel(max(stack.shape[1:3])), keep)
     xp = namespace(stack)
-    s = stack
-    h, w = s.shape[1:3]
-    measured = s.mean(axis=0)
-    if opts["declip"]:
-        s = declipped(s[..., None])[..., 0]
-    ic = s.mean(axis=0)
-    q = 0.5 * (s[0] - s[2])
-    u = 0.5 * (s[1] - s[3])
-    isv = xp.hypot(q, u)
-    imin = xp.maximum(ic - isv, 0.0)
-    k_small = _coherent_kernel(max(h, w))
-    a_coh = xp.hypot(_imageops.gaussian(q, k_small), _imageops.gaussian(u, k_small))
-    floor, a_eff, _, gate = coherent_gate(a_coh, ic, k_small, float(opts["polarized_threshold"]))
-    a_pix = xp.astype(xp.minimum(a_eff, isv) * gate, xp.float32)
-    ratio = gradient_ratio(imin, a_pix, float(opts["max_ratio"]))
-    diffuse = xp.clip(imin - ratio * a_pix, 0.0, xp.minimum(imin, measured))
-    if keep is not None:
-        keep["imin"] = xp.astype(imin, xp.float32)
-    return xp.astype(diffuse, xp.float32), {"residual_ratio": ratio, "polarized_floor": floor}
+    grey = xp.stack([stack, stack, stack], axis=-1)
+    layers: dict[str, Any] | None = None if keep is None else {}
+    diffuse, info = _colour(grey, {**opts, "illuminant": (1.0, 1.0, 1.0), "efficiency": None}, layers,
+                            colour_seen=False)
+    if keep is not None and layers is not None:
+        keep.update({k: xp.astype(v.mean(axis=-1), xp.float32) for k, v in layers.items()})
+    for k in ("illuminant", "illuminant_source", "efficiency", "polarized_colour"):
+        info.pop(k, None)
+    return xp.astype(diffuse.mean(axis=-1), xp.float32), info

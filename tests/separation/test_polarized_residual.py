@@ -18,6 +18,7 @@ from polcam.errors import MethodError
 from polcam.polarimetry import synthesize
 from polcam.separation import polarized_residual as pres
 from polcam.separation._polarization_noise import ALIASING, aliasing_deviation
+from polcam.separation.polarized_residual import stages
 from polcam.synth.photos import load_photo
 
 #: The optional residual steps, unbounded (module docstring).
@@ -237,8 +238,8 @@ def test_mono_clipped_strongly_polarized_highlight():
     part = (st >= 1.0).any(axis=0) & ((st >= 1.0).sum(axis=0) <= 2)
     assert part.sum() >= 8
     err = lambda x: float(np.abs(x - d)[part].mean())  # noqa: E731
-    ours = polcam.separate(st, method="polarized-residual").diffuse
-    off = polcam.separate(st, method="polarized-residual", declip=False).diffuse
+    ours = polcam.separate(st, method="polarized-residual", unpolarized="measured").diffuse
+    off = polcam.separate(st, method="polarized-residual", unpolarized="measured", declip=False).diffuse
     assert err(ours) < 0.5 * err(off)
 
 
@@ -299,6 +300,51 @@ def test_mono_stack_gives_a_mono_layer():
     np.testing.assert_allclose(res.diffuse, 0.2, atol=1e-6)
 
 
+
+def _noisy_mono_highlight(spec_scale, rho, seed=0):
+    """A grey ramp with a partly polarized highlight, 0.3 % noise: (4, 64, 64) in [0, 1]."""
+    h, w = 64, 64
+    d = 0.2 + 0.3 * np.mgrid[:h, :w][1] / w
+    spec = spec_scale * _bump(h, w, 30, 34, 5)
+    st = synthesize(spec, rho * spec, np.full((h, w), 0.6)) + d
+    rng = np.random.default_rng(seed)
+    return np.clip(st + rng.normal(0, 0.003, st.shape), 0, 1)
+
+
+def test_mono_stack_is_the_colour_path_on_a_grey_stack():
+    # a mono sensor is a colour sensor whose channels see the same light: the default mono layer is
+    # the colour path's on the stack repeated over three channels under a white illuminant
+    st = _noisy_mono_highlight(0.3, 0.5)
+    assert st.max() < 0.95
+    mono = polcam.separate(st, method="polarized-residual")
+    grey = polcam.separate(np.repeat(st[..., None], 3, axis=-1), method="polarized-residual", illuminant=(1, 1, 1))
+    np.testing.assert_allclose(mono.diffuse, grey.diffuse.mean(axis=-1), atol=1e-6)
+    assert mono.info["learned_specular"] == pytest.approx(grey.info["learned_specular"], abs=1e-6)
+    # it removes light from the highlight (the whole stage runs), and a mono camera has no colour to report
+    assert mono.info["learned_specular"] > 0 and np.all(mono.diffuse <= st.mean(axis=0) + 1e-6)
+    assert not {"illuminant", "illuminant_source", "efficiency"} & set(mono.info)
+    layers = stages(st)
+    assert set(layers) == {"imin", "diffuse_polarization", "evidence_bounded", "diffuse"}
+    assert all(v.shape == st.shape[1:] for v in layers.values())
+    np.testing.assert_allclose(layers["diffuse"], mono.diffuse, atol=1e-6)
+
+
+def test_mono_clipped_region_is_left_as_measured():
+    # without colour the border cannot show that one material lies under a clipped region, so a mono
+    # stack's clipped highlight is left as measured and counted; the same stack as a grey colour
+    # stack (whose one-material test the grey border passes) is filled
+    from polcam.separation import SATURATED
+
+    st = _noisy_mono_highlight(3.0, 0.3)
+    clipped = st.mean(axis=0) >= SATURATED
+    assert clipped.sum() > 50
+    mono = polcam.separate(st, method="polarized-residual")
+    np.testing.assert_allclose(mono.diffuse[clipped], st.mean(axis=0)[clipped], atol=1e-6)
+    assert mono.info["clipped_filled"] == 0 and mono.info["clipped_as_measured"] == clipped.sum()
+    grey = polcam.separate(np.repeat(st[..., None], 3, axis=-1), method="polarized-residual", illuminant=(1, 1, 1))
+    assert grey.info["clipped_filled"] == clipped.sum()
+
+
 def _mono_scene(rho):
     h, w = 64, 64
     yy, xx = np.mgrid[:h, :w]
@@ -310,8 +356,9 @@ def _mono_scene(rho):
 
 @pytest.mark.parametrize("rho", [0.4, 0.5, 1.0])
 def test_mono_residual_follows_the_polarized_highlight(rho):
+    # unpolarized="measured" on a mono stack: k from the gradients of Imin and the polarized light
     st, d = _mono_scene(rho)
-    res = polcam.separate(st, method="polarized-residual")
+    res = polcam.separate(st, method="polarized-residual", unpolarized="measured")
     imin = polcam.separate(st, method="imin").diffuse
     assert res.diffuse.shape == d.shape
     # the unpolarized share (1 - rho) of the highlight is found: k = (1 - rho) / rho
@@ -499,7 +546,7 @@ def test_stages_show_each_step():
     assert np.abs(out["ratio_removed"] - d)[hl].mean() < 0.3 * np.abs(out["polarized_removed"] - d)[hl].mean()
     # noise-free: imin is Ic less the polarized amplitude, here d plus the unpolarized half
     np.testing.assert_allclose(out["imin"], unpol, atol=1e-5)
-    mono = stages(st.mean(axis=-1))
+    mono = stages(st.mean(axis=-1), unpolarized="measured")
     assert set(mono) == {"imin", "diffuse"}
     np.testing.assert_allclose(mono["imin"], unpol.mean(axis=-1), atol=1e-5)
 
