@@ -12,13 +12,18 @@ worker (one BLAS thread), 1024 x 1024 synthetic 12-bit frames::
     form     resolution   tensor family   imin    other methods
     colour   cell          224 B/px        114     163 (yang10) - 178 (wen21)
     colour   full          890 B/px
-    mono     cell           59 B/px (polarized-residual, the mono default)
-    mono     full          225 B/px
+    mono     cell          180 B/px (polarized-residual, the mono default)
+    mono     full          640 B/px
 
 (``peak ru_maxrss`` after :func:`polcam.process.process_frame` minus before,
-``max_iter=3``).  The estimate takes the tensor family's figure for every
-colour method except ``imin`` (half of it), so it errs on the large side;
-a 5 MP colour frame at cell resolution comes to about 1.2 GB.
+``max_iter=3``).  The mono figures are those of ``polarized-residual`` since
+it runs its colour path on mono stacks: measured per frame in a warm worker
+(118 and 430 B/px; ``imin`` 20 and 97) and scaled by 1.5, the ratio of the two
+measurements for the methods measured both ways (``wen21`` 124 -> 178, the
+earlier mono path 39 -> 59).  The estimate takes the tensor family's figure for
+every colour method and the mono default's for every mono method, except
+``imin`` (half of it), so it errs on the large side; a 5 MP colour frame at
+cell resolution comes to about 1.2 GB, a mono one to about 1.0 GB.
 
 Disk (:func:`output_bytes`): the five products as uncompressed float32 (EXR
 compresses, so this is an upper bound), plus 64 KiB for ``meta.json``.
@@ -32,7 +37,7 @@ __all__ = ["BYTES_PER_PIXEL", "default_max_memory", "frame_memory", "output_byte
 
 #: (colour, resolution) -> bytes per sensor pixel at the peak of one frame (tensor family, mono default).
 BYTES_PER_PIXEL: dict[tuple[bool, str], int] = {
-    (True, "cell"): 230, (True, "full"): 900, (False, "cell"): 60, (False, "full"): 230,
+    (True, "cell"): 230, (True, "full"): 900, (False, "cell"): 180, (False, "full"): 640,
 }
 _FIXED = 64 << 20
 _LIGHT = ("imin",)   # methods measured at about half the table's figure
@@ -54,7 +59,7 @@ def frame_memory(width: int, height: int, *, colour: bool, resolution: str = "ce
         The separation method (``None``: the default for the form).
     """
     per_px = BYTES_PER_PIXEL[(bool(colour), "full" if resolution == "full" else "cell")]
-    if colour and method in _LIGHT:
+    if method in _LIGHT:
         per_px //= 2
     return _FIXED + int(width) * int(height) * per_px
 
