@@ -577,8 +577,8 @@ def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) 
     is the illuminant's), so steps 0-7 run unchanged and their colour tests pass on every pixel,
     except the clipped regions' fill: without colour the border cannot show that one material lies
     under the clipping, so they are left as measured (counted in ``info``).  The layer is the
-    channels' mean.  ``illuminant`` and ``efficiency`` do not apply and are
-    ignored, and ``info`` carries no illuminant.  With ``unpolarized="measured"``,
+    channels' mean.  ``illuminant`` and ``efficiency`` do not apply and are ignored, and ``info``
+    carries no illuminant.  With ``unpolarized="measured"``,
     :func:`polcam.separation._residual.mono_steps`.
     """
     if opts["unpolarized"] == "measured":
