@@ -176,7 +176,7 @@ def _material_colour(px: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, float, 
 
 
 def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
-                            light: Any = None) -> tuple[Any, dict[str, int]]:
+                            light: Any = None, *, colour_seen: bool = True) -> tuple[Any, dict[str, int]]:
     """``polarized-residual``'s last step: clipped highlights filled smoothly with their own material's diffuse.
 
     ``diffuse`` and ``measured`` (the mean over angles as measured) are (H, W, 3), ``spec`` (H, W)
@@ -194,7 +194,9 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
       polarized specular light, on a ramp from none below ``_RING_SHARE - _RING_RAMP / 2`` to
       whole above ``_RING_SHARE + _RING_RAMP / 2`` (an overexposed matte surface has none);
     * the border is one material: the intensity-weighted RMS spread of its diffuse chromaticity,
-      on a ramp from whole at ``_ONE_MATERIAL`` to none at twice it.
+      on a ramp from whole at ``_ONE_MATERIAL`` to none at twice it.  With ``colour_seen=False``
+      (a mono stack taken as a grey one) the chromaticity was not measured, so no border shows
+      one material and every region is left as measured.
 
     The fill is the border's diffuse interpolated smoothly into the region (:func:`smooth_fill`),
     so it has the colour of its own material, never above the measurement in any channel; a
@@ -209,6 +211,8 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
     stats = {"clipped_pixels": n_sat, "clipped_filled": 0, "clipped_as_measured": n_sat}
     if n_sat == 0:
         return diffuse, stats
+    if not colour_seen:
+        return xp.where(sat_px[..., None], measured, diffuse), stats
     sat_h = xp.to_numpy(sat_px)
     spec_h = xp.to_numpy(spec)
     dif_h = xp.to_numpy(diffuse).astype(np.float32)

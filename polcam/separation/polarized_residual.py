@@ -356,8 +356,8 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
         diffuse = _highlight_evidence(diffuse, ic, gx, window=_odd(float(opts["evidence_window"]) * v["side"]))
     if keep is not None:
         keep["evidence_bounded"] = xp.astype(diffuse, xp.float32)
-    diffuse, clip_stats = _clipped_highlights(diffuse, measured, ic, spec if colour_seen else 0.0 * lum, gx,
-                                              removed_share=colour_seen and opts["unpolarized"] != "measured")
+    diffuse, clip_stats = _clipped_highlights(diffuse, measured, ic, spec, gx,
+                                              removed_share=opts["unpolarized"] != "measured", colour_seen=colour_seen)
     info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
             "polarized_floor": floor, "diffuse_like_share": share}
@@ -542,20 +542,21 @@ def _highlight_evidence(diffuse: Any, ic: Any, gx: Any, *, window: int) -> Any:
 
 
 def _clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, gx: Any,
-                        *, removed_share: bool) -> tuple[Any, dict[str, int]]:
+                        *, removed_share: bool, colour_seen: bool) -> tuple[Any, dict[str, int]]:
     """Step 6: regions clipped at all four angles filled when their border is a highlight of one material.
 
     With ``removed_share`` a border pixel votes by the share of its light the layer removes: a ramp
     over half of ``_HIGHLIGHT_BORDER`` either side of it, so that a pixel's vote does not switch
-    under noise; otherwise ``spec`` (the coherent polarized specular light's mask) votes.
+    under noise; otherwise ``spec`` (the coherent polarized specular light's mask) votes.  Without
+    ``colour_seen`` none is filled (:func:`polcam.separation._clipping.fill_clipped_highlights`).
     """
     xp = namespace(diffuse)
     light = None
-    if removed_share:
+    if removed_share and colour_seen:
         light = sum3(ic)
         share = sum3(ic - diffuse) / xp.maximum(light, _LIGHT_GUARD)
         spec = xp.clip((share - _HIGHLIGHT_BORDER) / _HIGHLIGHT_BORDER + 0.5, 0.0, 1.0)
-    return fill_clipped_highlights(diffuse, measured, spec, gx, light)
+    return fill_clipped_highlights(diffuse, measured, spec, gx, light, colour_seen=colour_seen)
 
 
 def _within_measured(diffuse: Any, measured: Any, gx: Any) -> Any:
