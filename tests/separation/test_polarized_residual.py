@@ -18,7 +18,6 @@ from polcam.errors import MethodError
 from polcam.polarimetry import synthesize
 from polcam.separation import polarized_residual as pres
 from polcam.separation._polarization_noise import ALIASING, aliasing_deviation
-from polcam.separation.polarized_residual import stages
 from polcam.synth.photos import load_photo
 
 #: The optional residual steps, unbounded (module docstring).
@@ -323,7 +322,7 @@ def test_mono_stack_is_the_colour_path_on_a_grey_stack():
     # it removes light from the highlight (the whole stage runs), and a mono camera has no colour to report
     assert mono.info["learned_specular"] > 0 and np.all(mono.diffuse <= st.mean(axis=0) + 1e-6)
     assert not {"illuminant", "illuminant_source", "efficiency"} & set(mono.info)
-    layers = stages(st)
+    layers = pres.stages(st)
     assert set(layers) == {"imin", "diffuse_polarization", "evidence_bounded", "diffuse"}
     assert all(v.shape == st.shape[1:] for v in layers.values())
     np.testing.assert_allclose(layers["diffuse"], mono.diffuse, atol=1e-6)
