@@ -6,10 +6,17 @@ loopback (``-i 127.0.0.1``) it is the way to exercise the real GigE code path
 (packet size, packet loss, missing packets) without hardware.  Aravis sees it
 as ``Aravis-Fake-<SERIAL>``.
 
-Every emulator on a machine binds UDP port 3956 on 127.0.0.1, so two running
-at once would answer each other's commands: :func:`gige_emulator` holds an
-exclusive lock (``/tmp/polcam-gige-emulator.lock``) for as long as its
-emulator runs, and always kills the process when the block ends.
+Every emulator on a machine binds UDP port 3956 (GVCP) on 127.0.0.1, and
+one that finds the port taken still answers discovery while the commands go
+to whoever holds the port.  So :func:`gige_emulator`
+
+- holds an exclusive lock (``/tmp/polcam-gige-emulator.lock``) for as long as
+  its emulator runs;
+- waits for the port to be free before it starts one, and checks that its own
+  emulator is the one bound to it (Linux ``/proc``) before it yields;
+- always stops the process when the block ends, and starts it with a parent
+  death signal (``setpriv --pdeathsig KILL``, util-linux) so that a killed
+  Python process does not leave an emulator holding the port.
 """
 
 from __future__ import annotations
@@ -34,6 +41,11 @@ __all__ = ["EMULATOR", "EmulatorId", "emulator_available", "gige_emulator"]
 EMULATOR = "arv-fake-gv-camera-0.8"
 
 _LOCK = Path(tempfile.gettempdir()) / "polcam-gige-emulator.lock"
+
+#: The GVCP port and its address as ``/proc/net/udp`` writes it (127.0.0.1 and
+#: 0.0.0.0, both of which hold 127.0.0.1:3956).
+GVCP_PORT = 3956
+_GVCP_LOCAL = {f"0100007F:{GVCP_PORT:04X}", f"00000000:{GVCP_PORT:04X}"}
 
 
 def emulator_available() -> bool:
@@ -71,6 +83,82 @@ def _exclusive(timeout: float) -> Iterator[None]:
         os.close(fd)
 
 
+def _gvcp_socket_inodes() -> set[int] | None:
+    """Inodes of the UDP sockets bound to 127.0.0.1:3956, or None without ``/proc``."""
+    try:
+        lines = Path("/proc/net/udp").read_text().splitlines()[1:]
+    except OSError:
+        return None
+    inodes = set()
+    for line in lines:
+        fields = line.split()
+        if len(fields) > 9 and fields[1] in _GVCP_LOCAL:
+            inodes.add(int(fields[9]))
+    return inodes
+
+
+def _socket_inodes_of(pid: int) -> set[int]:
+    inodes = set()
+    fd_dir = Path(f"/proc/{pid}/fd")
+    try:
+        fds = list(fd_dir.iterdir())
+    except OSError:
+        return inodes
+    for fd in fds:
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            inodes.add(int(target[8:-1]))
+    return inodes
+
+
+def _holders(inodes: set[int]) -> str:
+    """'pid 123 (arv-fake-gv-camera-0.8 -i ...)' for the processes we may look into."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit() and _socket_inodes_of(int(proc.name)) & inodes:
+            try:
+                cmd = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+            except OSError:
+                cmd = "?"
+            found.append(f"pid {proc.name} ({cmd})")
+    return ", ".join(found) or "a process this user cannot see"
+
+
+def _wait_for_free_port(timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while (inodes := _gvcp_socket_inodes()):
+        if time.monotonic() > deadline:
+            raise CameraUnavailableError(
+                f"UDP 127.0.0.1:{GVCP_PORT} (GVCP) is held by {_holders(inodes)}; an emulator started "
+                "now would answer discovery while that process took its commands: stop it first"
+            )
+        time.sleep(0.2)
+
+
+def _check_owner(proc: subprocess.Popen[bytes]) -> None:
+    inodes = _gvcp_socket_inodes()
+    if inodes is None:  # no /proc: nothing to check
+        return
+    if not inodes & _socket_inodes_of(proc.pid):
+        raise CameraUnavailableError(
+            f"{EMULATOR} (pid {proc.pid}) did not bind UDP 127.0.0.1:{GVCP_PORT}; "
+            f"it is held by {_holders(inodes) if inodes else 'nobody'}"
+        )
+
+
+def _command(exe: str, serial: str, lost_per_thousand: int) -> list[str]:
+    cmd = [exe, "-i", "127.0.0.1", "-s", serial]
+    if lost_per_thousand:
+        cmd += ["-r", str(int(lost_per_thousand))]
+    setpriv = shutil.which("setpriv")
+    if setpriv is not None:  # killed with us, even by SIGKILL; kept across exec
+        cmd = [setpriv, "--pdeathsig", "KILL", "--", *cmd]
+    return cmd
+
+
 @contextlib.contextmanager
 def gige_emulator(*, serial: str | None = None, lost_per_thousand: int = 0,
                   start_timeout: float = 15.0, lock_timeout: float = 120.0) -> Iterator[EmulatorId]:
@@ -97,7 +185,8 @@ def gige_emulator(*, serial: str | None = None, lost_per_thousand: int = 0,
     Raises
     ------
     CameraUnavailableError
-        No emulator executable, Aravis missing, or the emulator did not show up.
+        No emulator executable, Aravis missing, the emulator did not show up,
+        or another process holds UDP 127.0.0.1:3956 (named in the message).
     """
     exe = shutil.which(EMULATOR)
     if exe is None:
@@ -107,10 +196,9 @@ def gige_emulator(*, serial: str | None = None, lost_per_thousand: int = 0,
     load_aravis()
     serial = serial or f"PC{random.randrange(10**6):06d}"
     device_id = f"Aravis-Fake-{serial}"
-    cmd = [exe, "-i", "127.0.0.1", "-s", serial]
-    if lost_per_thousand:
-        cmd += ["-r", str(int(lost_per_thousand))]
+    cmd = _command(exe, serial, lost_per_thousand)
     with _exclusive(lock_timeout):
+        _wait_for_free_port(start_timeout)
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL, start_new_session=True)
         try:
@@ -123,6 +211,7 @@ def gige_emulator(*, serial: str | None = None, lost_per_thousand: int = 0,
                         f"{EMULATOR} did not appear as {device_id} within {start_timeout:g} s"
                     )
                 time.sleep(0.2)
+            _check_owner(proc)
             dev = EmulatorId(device_id)
             dev.process = proc
             yield dev
