@@ -6,10 +6,12 @@ layer.  ``rho_s`` is the Fresnel degree of polarization at the incidence angle (
 index), which one pixel does not show; no single ratio fits every highlight (on the randomized
 family's validation scenes the true unpolarized / polarized ratio ranges over 0 to 24).  What does
 show it is local: how far the pixel rises above its neighbourhood, how close its colour is to
-``G`` against the colour around it, how much polarized light was removed there and whether that
-light crosses the edges (specular) or follows them (diffuse, at rims).
+``G`` against the colour around it and against the least white pixel near it (a body colour's
+own whiteness: a pixel paler than its material holds light of ``G``'s colour; Tan & Ikeuchi
+2005), how much polarized light was removed there and whether that light crosses the edges
+(specular) or follows them (diffuse, at rims).
 
-This stage maps those local measures (:func:`features`, 33 per pixel, ratios free of the exposure
+This stage maps those local measures (:func:`features`, 35 per pixel, ratios free of the exposure
 but for the measured level) to the share of the light it may remove, along ``G``, that is
 unpolarized specular:
 
@@ -30,7 +32,7 @@ The removal is one multiple of ``G`` per pixel (the layer keeps one specular col
 than the layer holds.  Clipped pixels (a channel at the white level) do not show their colour or
 level; polarized-residual's clipped fill treats them.
 
-The MLP (33 -> 24 -> 24 -> 1, tanh) is trained by ``polcam bench train-residual``
+The MLP (35 -> 24 -> 24 -> 1, tanh) is trained by ``polcam bench train-residual``
 (:mod:`polcam.bench.residual_training`) on the randomized scene family's training seeds only
 (:func:`polcam.synth.family.training_seeds`, disjoint from validation and test), whose albedo
 photographs are public domain or CC0, so the weights ship.  Kernel sizes are shares of the image's
@@ -73,6 +75,7 @@ FEATURES = (
     "log L/L@25", "log removed@25/L", "white@25-white",
     "log L/L@61", "log removed@61/L", "white@61-white",
     "log L/max5", "log min5/L", "log L/max15", "log min15/L", "bound/L",
+    "white-minwhite15", "white-minwhite37",
 )
 #: Pixels per block of the model's evaluation (its hidden layers stay in the cache).
 _CHUNK = 16384
@@ -166,7 +169,7 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     Returns
     -------
     x : array
-        (N, 33) float32, the ``where`` pixels in row-major order, :data:`FEATURES` in order: ratios
+        (N, 35) float32, the ``where`` pixels in row-major order, :data:`FEATURES` in order: ratios
         and logs of ratios (free of the exposure), the clipped flag and the measured level.
         Neighbourhood measures are computed over the whole image, the pixel's own only where
         wanted.
@@ -206,17 +209,35 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
          xp.astype(mmax >= saturated, xp.float32), mmax,
          at(along), (qs * c2w + us * s2w) / xp.maximum(xp.hypot(qs, us), 1e-6), at(coh), at(nn) / 3.0 / lw,
          g(along * gate, 19), g(along * gate, 49), g(along, 49)]
+    f += _neighbourhood(light, removed, white, bound, at, side)
+    # (F, N) rows copied whole, then seen as (N, F): matrix products read the transpose in place
+    return xp.stack([xp.astype(a, xp.float32) for a in f], axis=0).T
+
+
+def _neighbourhood(light: Any, removed: Any, white: Any, bound: Any, at: Any, side: int) -> list[Any]:
+    """The last 16 of :data:`FEATURES`, at the wanted pixels (``at`` gathers them from an (H, W) map).
+
+    The pixel's level, removal and whiteness against their blurs over 9, 25 and 61 pixels (at
+    :data:`TRAIN_SIDE`); its level against the local maximum and minimum over 5 and 15; the bound;
+    its whiteness less the least whiteness within 15 and 37 pixels: where that pixel is the same
+    material unlit by the highlight, how much paler than its body colour the pixel is, which only
+    light of ``G``'s colour makes it (the maximum chromaticity of Tan & Ikeuchi 2005).
+    """
+    xp = namespace(light)
+    lw, ww = at(light), at(white)
+    f = []
     for px in (9, 25, 61):
-        f.append(xp.log(lw / xp.maximum(g(light, px), _EPS)))
-        f.append(xp.log(xp.maximum(g(removed, px), 0.0) / lw + 1e-3))
-        f.append(g(white, px) - at(white))
+        f.append(xp.log(lw / xp.maximum(at(_blur(light, px, side)), _EPS)))
+        f.append(xp.log(xp.maximum(at(_blur(removed, px, side)), 0.0) / lw + 1e-3))
+        f.append(at(_blur(white, px, side)) - ww)
     for px in (5, 15):
         k = _k(px, side)
         f.append(xp.log(lw / xp.maximum(at(_imageops.dilate(light, k)), _EPS)))
         f.append(xp.log(xp.maximum(at(_imageops.erode(light, k)), _EPS) / lw))
     f.append(at(bound) / lw)
-    # (F, N) rows copied whole, then seen as (N, F): matrix products read the transpose in place
-    return xp.stack([xp.astype(a, xp.float32) for a in f], axis=0).T
+    for px in (15, 37):
+        f.append(ww - at(_imageops.erode(white, _k(px, side))))
+    return f
 
 
 def zone(gate: Any, measured: Any, saturated: float, side: int, bound: Any) -> Any:
