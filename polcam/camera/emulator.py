@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import functools
 import os
 import random
 import shutil
@@ -149,14 +150,26 @@ def _check_owner(proc: subprocess.Popen[bytes]) -> None:
         )
 
 
+@functools.lru_cache(maxsize=1)
+def _pdeathsig_prefix() -> tuple[str, ...]:
+    """``setpriv --pdeathsig KILL --`` where setpriv has that option (util-linux 2.33 on), else nothing."""
+    setpriv = shutil.which("setpriv")
+    if setpriv is None:
+        return ()
+    prefix = (setpriv, "--pdeathsig", "KILL", "--")
+    try:
+        ok = subprocess.run([*prefix, "true"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, timeout=10).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        ok = False
+    return prefix if ok else ()
+
+
 def _command(exe: str, serial: str, lost_per_thousand: int) -> list[str]:
     cmd = [exe, "-i", "127.0.0.1", "-s", serial]
     if lost_per_thousand:
         cmd += ["-r", str(int(lost_per_thousand))]
-    setpriv = shutil.which("setpriv")
-    if setpriv is not None:  # killed with us, even by SIGKILL; kept across exec
-        cmd = [setpriv, "--pdeathsig", "KILL", "--", *cmd]
-    return cmd
+    return [*_pdeathsig_prefix(), *cmd]  # killed with us, even by SIGKILL (kept across exec)
 
 
 @contextlib.contextmanager

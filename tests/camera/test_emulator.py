@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from polcam.camera import aravis_available
-from polcam.camera.emulator import EMULATOR, emulator_available, gige_emulator
+from polcam.camera.emulator import EMULATOR, _pdeathsig_prefix, emulator_available, gige_emulator
 from polcam.errors import CameraUnavailableError
 
 pytestmark = [
@@ -75,7 +75,7 @@ def test_a_foreign_listener_on_the_gvcp_port_is_named_not_talked_to():
         assert dev.process.poll() is None
 
 
-@pytest.mark.skipif(shutil.which("setpriv") is None, reason="setpriv (util-linux) not installed")
+@pytest.mark.skipif(not _pdeathsig_prefix(), reason="setpriv --pdeathsig (util-linux 2.33 or later) not available")
 def test_the_emulator_dies_with_a_killed_parent():
     serial = "PCK" + str(os.getpid())[-6:]
     code = ("import sys, time\n"
