@@ -193,7 +193,7 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
         return at(_blur(a, px, side))
 
     # the pixel's own measures, where wanted
-    lw = at(light)
+    lw, ww = at(light), at(white)
     dw = at(diffuse) / gx
     dmin = min3(dw)
     icw = at(ic)
@@ -201,7 +201,7 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     us = sum3(at(v["u"]) / gx)
     c2w, s2w = at(c2), at(s2)
     mmax = max3(at(measured))
-    f = [at(removed) / lw, xp.maximum(dmin, 0.0) / lw, at(white),
+    f = [at(removed) / lw, xp.maximum(dmin, 0.0) / lw, ww,
          dmin / xp.maximum(sum3(dw) / 3.0, _EPS),
          xp.clip(sum3(icw - at(v["imin"])) / xp.maximum(sum3(icw), _EPS), 0.0, 1.0),
          at(gate), g(gate, 13), g(gate, 37),
@@ -209,13 +209,15 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
          xp.astype(mmax >= saturated, xp.float32), mmax,
          at(along), (qs * c2w + us * s2w) / xp.maximum(xp.hypot(qs, us), 1e-6), at(coh), at(nn) / 3.0 / lw,
          g(along * gate, 19), g(along * gate, 49), g(along, 49)]
-    f += _neighbourhood(light, removed, white, bound, at, side)
+    f += _neighbourhood(light, removed, white, bound, at, lw, ww, side)
     # (F, N) rows copied whole, then seen as (N, F): matrix products read the transpose in place
     return xp.stack([xp.astype(a, xp.float32) for a in f], axis=0).T
 
 
-def _neighbourhood(light: Any, removed: Any, white: Any, bound: Any, at: Any, side: int) -> list[Any]:
-    """The last 16 of :data:`FEATURES`, at the wanted pixels (``at`` gathers them from an (H, W) map).
+def _neighbourhood(light: Any, removed: Any, white: Any, bound: Any, at: Any, lw: Any, ww: Any,
+                   side: int) -> list[Any]:
+    """The last 16 of :data:`FEATURES`, at the wanted pixels (``at`` gathers them from an (H, W) map;
+    ``lw``, ``ww`` are ``light`` and ``white`` gathered already).
 
     The pixel's level, removal and whiteness against their blurs over 9, 25 and 61 pixels (at
     :data:`TRAIN_SIDE`); its level against the local maximum and minimum over 5 and 15; the bound;
@@ -224,7 +226,6 @@ def _neighbourhood(light: Any, removed: Any, white: Any, bound: Any, at: Any, si
     light of ``G``'s colour makes it (the maximum chromaticity of Tan & Ikeuchi 2005).
     """
     xp = namespace(light)
-    lw, ww = at(light), at(white)
     f = []
     for px in (9, 25, 61):
         f.append(xp.log(lw / xp.maximum(at(_blur(light, px, side)), _EPS)))

@@ -589,7 +589,7 @@ def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) 
     layers: dict[str, Any] | None = None if keep is None else {}
     diffuse, info = _colour(grey, {**opts, "illuminant": (1.0, 1.0, 1.0), "efficiency": None}, layers,
                             colour_seen=False)
-    if keep is not None and layers is not None:
+    if layers is not None:
         keep.update({k: xp.astype(v.mean(axis=-1), xp.float32) for k, v in layers.items()})
     for k in ("illuminant", "illuminant_source", "efficiency", "polarized_colour"):
         info.pop(k, None)
