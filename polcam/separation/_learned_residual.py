@@ -93,7 +93,9 @@ EVIDENCE_WINDOW = 0.12
 #: bounds it.  A sweep on the first 400 validation scenes with 150 training scenes (none: 27.92 dB,
 #: best or within 0.3 dB 82 %; 1: 28.13, 85 %; 2: 28.13, 84 %; 4: 28.14, 84 %) against the matte grey
 #: checker of tests/separation/test_polarized_residual_physics.py, which false polarization at its
-#: edges makes keep under 0.98 of its light from 2 on (1: 0.981 and 0.986).
+#: edges makes keep under 0.98 of its light from 2 on (1: 0.981 and 0.986).  With the shipped weights
+#: 2 keeps the checker but thins a one-pixel contour of polarized diffuse light beside a highlight and
+#: gains nothing on the test split (docs/decisions/learned-unpolarized-specular.md, "Still r = 1").
 POLARIZED_RATIO = 1.0
 
 
