@@ -24,7 +24,9 @@ __all__ = ["declipped", "fill_clipped_highlights", "smooth_fill"]
 _RING_SHARE = 0.3
 _RING_RAMP = 0.4
 #: Chromaticity spread (intensity-weighted RMS) of a clipped region's border under which the border is
-#: one material, and so says what colour is under the clipping; none is filled from twice it.
+#: one material, and so says what colour is under the clipping; none is filled from twice it.  On the
+#: first 400 validation scenes (docs/methods/polarized-residual.md, step 6): 0.01-0.02 within 0.02 dB
+#: of the best, no fill 0.02 dB under, any border 0.9 dB under.
 _ONE_MATERIAL = 0.02
 
 
