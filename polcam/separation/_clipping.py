@@ -20,7 +20,9 @@ __all__ = ["declipped", "fill_clipped_highlights", "smooth_fill"]
 
 #: A clipped region is filled as a highlight in proportion to the share of its unclipped border
 #: that shows coherent polarized specular light: not at all below _RING_SHARE - _RING_RAMP / 2,
-#: wholly above _RING_SHARE + _RING_RAMP / 2.
+#: wholly above _RING_SHARE + _RING_RAMP / 2.  Without the vote (every region weighted 1) the first 400
+#: validation scenes score the same (28.50 dB against 28.49) and the relit real stacks' specular colour
+#: spread doubles (0.027 to 0.051): overexposed surfaces that are not highlights get filled.
 _RING_SHARE = 0.3
 _RING_RAMP = 0.4
 #: Chromaticity spread (intensity-weighted RMS) of a clipped region's border under which the border is
