@@ -21,9 +21,13 @@ from polcam.separation._common import LIT
 from polcam.separation._illuminant import SATURATED
 
 #: Noise deviations at which the non-negative garrote of the polarized amplitude (``noise="shrink"``) sets in.
+#: On the first 400 validation scenes polarized-residual scores alike from 2 to 3 (2: 28.47 dB, best or
+#: within 0.3 dB of the four other methods 80.0 %; 2.5: 28.49, 79.5 %; 3: 28.49, 79.5 %), and the harm
+#: checks of :func:`polcam.bench.residual_training.harm_checks` do not move (checker 0.983 at each).
 _KSIG = 2.5
 #: Deviations of its own noise at which a smoothed quantity is coherent signal, not noise: the amplitude
 #: that fixes the polarization axis (:func:`axis_debias`), the colour prior's removal (:func:`prior_removal`).
+#: The same 400 scenes: 3: 28.48 dB, 79.5 %; 4: 28.49, 79.5 %; 5: 28.49, 79.2 %.
 COHERENT_KSIG = 4.0
 #: The demosaicing's aliasing of the Stokes components: on an unpolarized scene the interpolated q and
 #: u deviate from 0 by this many times ``C Ic`` (RMS), ``C`` the local log contrast of the intensity
