@@ -167,12 +167,22 @@ def _running_max(x: Any, k: int) -> Any:
     return torch.maximum(suf[..., :n], pre[..., k - 1:k - 1 + n])
 
 
-def sobel(a: Any, dx: int, dy: int) -> Any:
-    """3 x 3 Sobel derivative (``(dx, dy)`` = (1, 0) or (0, 1)), as ``cv2.Sobel(a, cv2.CV_32F, dx, dy, ksize=3)``."""
+#: Sobel kernels by size: (smoothing, derivative), OpenCV's.
+_SOBEL = {3: (np.array([1.0, 2.0, 1.0]), np.array([-1.0, 0.0, 1.0])),
+          5: (np.array([1.0, 4.0, 6.0, 4.0, 1.0]), np.array([-1.0, -2.0, 0.0, 2.0, 1.0]))}
+
+
+def sobel(a: Any, dx: int, dy: int, ksize: int = 3) -> Any:
+    """Sobel derivative (``(dx, dy)`` = (1, 0) or (0, 1)), as ``cv2.Sobel(a, cv2.CV_32F, dx, dy, ksize=ksize)``.
+
+    ``ksize`` 3 or 5.  Not normalised, as OpenCV's are not: on a ramp of slope 1 per pixel the
+    3 x 3 gives 8 and the 5 x 5 gives 128.
+    """
+    if ksize not in _SOBEL:
+        raise ValueError(f"ksize {ksize}: expected 3 or 5")
     if namespace(a).name == "numpy":
-        return cv2.Sobel(a, cv2.CV_32F, dx, dy, ksize=3)
-    d = np.array([-1.0, 0.0, 1.0])
-    s = np.array([1.0, 2.0, 1.0])
+        return cv2.Sobel(a, cv2.CV_32F, dx, dy, ksize=ksize)
+    s, d = _SOBEL[ksize]
     return _separable(a, s, d) if dx else _separable(a, d, s)
 
 

@@ -64,10 +64,18 @@ def test_sobel_and_masks_on_torch(shape, dev):
     for dx, dy in ((1, 0), (0, 1)):
         np.testing.assert_allclose(_imageops.sobel(t, dx, dy).cpu().numpy(),
                                    cv2.Sobel(a, cv2.CV_32F, dx, dy, ksize=3), rtol=0, atol=2e-6)
+        # the 5 x 5 kernel's taps sum to 16 times the 3 x 3's weight: float32 error grows with them
+        np.testing.assert_allclose(_imageops.sobel(t, dx, dy, ksize=5).cpu().numpy(),
+                                   cv2.Sobel(a, cv2.CV_32F, dx, dy, ksize=5), rtol=0, atol=2e-5)
     # a 0/1 mask eroded as OpenCV erodes its uint8 form (outside the image never counts)
     m = (a > 0.3).astype(np.uint8)
     got = _imageops.erode(torch.as_tensor(m, device=dev), 3).cpu().numpy()
     np.testing.assert_array_equal(got, cv2.erode(m, np.ones((3, 3), np.uint8)))
+
+
+def test_sobel_refuses_other_sizes():
+    with pytest.raises(ValueError, match="ksize 7"):
+        _imageops.sobel(np.zeros((4, 4), np.float32), 1, 0, ksize=7)
 
 
 def test_running_max_is_the_windowed_maximum():

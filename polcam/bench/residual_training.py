@@ -138,15 +138,17 @@ def _subset(parts: list[dict[str, np.ndarray]], most: int, seed: int) -> dict[st
 
 
 def matte_scene(index: int, *, size: int = 128) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A matte training scene: grey and near-grey rectangles, no specular light, as the camera gives it.
+    """A matte training scene: grey, near-grey and coloured rectangles, no specular light, as the camera gives it.
 
-    Rectangles of 6-48 pixels (8-40 of them, half tinted by up to 15 % per channel) at levels 0.05-0.8
-    on a ground of 0.1-0.7, under white light (60 %) or a tint of 0.7-1.3 per channel, scaled by
+    Rectangles of 6-48 pixels (8-40 of them; 35 % grey, 35 % tinted by up to 15 % per channel, 30 %
+    of a saturated colour, each channel 0.05-1 of the largest) at levels 0.05-0.8 on a ground of
+    0.1-0.7, under white light (60 %) or a tint of 0.7-1.3 per channel, scaled by
     0.5-1.3 and kept under 0.95; unpolarized, with the shot noise of a 5,000-30,000-electron full well,
     12-bit, through the IMX250MYR mosaic and the default demosaicing.  Their edges carry the
     demosaicing's false polarization and overshoot, and nothing in them is specular: the stage's
     target there is 0 (what it keeps of a matte surface, :func:`harm_checks`, is learned, not only
-    checked).  Returns the stack ((4, H, W, 3) float32), the true diffuse ((H, W, 3)) and the object
+    checked).  A pale rectangle beside a saturated one is whiter than its neighbour, as a highlight
+    on a coloured material is, with no light of ``G``'s colour on it.  Returns the stack ((4, H, W, 3) float32), the true diffuse ((H, W, 3)) and the object
     mask (all True).
     """
     rng = np.random.default_rng((_MATTE_STREAM, int(index)))
@@ -154,7 +156,12 @@ def matte_scene(index: int, *, size: int = 128) -> tuple[np.ndarray, np.ndarray,
     for _ in range(int(rng.integers(8, 40))):
         y0, x0 = rng.integers(0, size, 2)
         hh, ww = rng.integers(6, 48, 2)
-        tint = 1.0 + (rng.uniform(-0.15, 0.15, 3) if rng.random() < 0.5 else 0.0)
+        kind = rng.random()
+        if kind < 0.3:     # a saturated body colour: beside it a pale matte surface is whiter, not lit
+            tint = rng.uniform(0.05, 1.0, 3)
+            tint = tint / tint.max()
+        else:
+            tint = 1.0 + (rng.uniform(-0.15, 0.15, 3) if kind < 0.65 else 0.0)
         d[y0:y0 + hh, x0:x0 + ww] = rng.uniform(0.05, 0.8) * tint
     light = np.ones(3) if rng.random() < 0.6 else rng.uniform(0.7, 1.3, 3)
     d = np.clip(d * light * rng.uniform(0.5, 1.3), 0.0, 0.95)

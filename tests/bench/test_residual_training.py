@@ -76,9 +76,10 @@ def test_harm_checks_pass_the_shipped_weights_and_fail_a_greedy_model() -> None:
     shipped = rt.harm_checks(lr.load_weights())
     assert rt.failed_checks(shipped) == [] and shipped["checker16_kept"] < 1.0   # the stage does act there
     greedy = rt.harm_checks(_removes_its_whole_bound())
-    # what the evidence bound would let through if the model took all of it: a good part of the
-    # 16-pixel squares' light, and of the chart's greys
-    assert greedy["checker16_kept"] < 0.9 and greedy["checker16_worst_square"] < 0.7
+    # what the evidence bound would let through if the model took all of it: a share of the
+    # 16-pixel squares' light (step 0's fit leaves little of the demosaicing's polarization at
+    # their edges, so few of their pixels lie in the zone), and of the chart's greys
+    assert greedy["checker16_kept"] < 0.95 and greedy["checker16_worst_square"] < 0.9
     assert greedy["chart_worst_grey"] < 0.96 and greedy["chart_frame_worst_grey"] < 0.96
     failed = rt.failed_checks(greedy)
     assert any(f.startswith("checker16_kept") for f in failed) and any(f.startswith("chart_worst_grey") for f in failed)
@@ -104,15 +105,28 @@ def test_weights_that_fail_the_checks_do_not_replace_the_shipped_ones(tmp_path, 
 
 
 def test_matte_scenes_hold_no_specular_light() -> None:
+    from scipy import ndimage
+
     stack, truth, mask = rt.matte_scene(0, size=64)
     assert stack.shape == (4, 64, 64, 3) and stack.dtype == np.float32 and truth.shape == (64, 64, 3) and mask.all()
-    # nothing but the diffuse, unpolarized: the light is the truth's (noise and demosaicing average
-    # out over the image), and the image's S1 and S2 vanish against its S0
-    assert abs(stack.mean() / truth.mean() - 1.0) < 0.005
-    s0 = float((stack[0] + stack[2]).sum())
-    assert abs(float((stack[0] - stack[2]).sum())) < 0.005 * s0 and abs(float((stack[1] - stack[3]).sum())) < 0.005 * s0
     again, _, _ = rt.matte_scene(0, size=64)
     assert np.array_equal(again, stack) and not np.array_equal(rt.matte_scene(1, size=64)[0], stack)
+    saturated = 0
+    for index in range(4):
+        stack, truth, _ = rt.matte_scene(index)
+        # nothing but the diffuse: the light is the truth's (noise and demosaicing average out)
+        assert abs(stack.mean() / truth.mean() - 1.0) < 0.005
+        # and unpolarized: away from the rectangles' edges, where the demosaicing draws its own
+        # polarization, the image's S1 and S2 vanish against its S0 (noise alone)
+        flat = np.all(ndimage.maximum_filter(truth, size=(13, 13, 1)) == ndimage.minimum_filter(truth, size=(13, 13, 1)),
+                      axis=-1)
+        s0 = float((stack[0] + stack[2])[flat].sum())
+        assert flat.mean() > 0.2
+        assert abs(float((stack[0] - stack[2])[flat].sum())) < 0.003 * s0
+        assert abs(float((stack[1] - stack[3])[flat].sum())) < 0.003 * s0
+        # some rectangles are of a saturated colour, not only grey or near grey
+        saturated += int(((truth.max(-1) - truth.min(-1)) > 0.5 * truth.max(-1)).any())
+    assert saturated >= 2
 
 
 def test_training_samples_add_the_matte_scenes() -> None:

@@ -242,9 +242,9 @@ def _mono_camera(stack: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("cell", [8, 16, 32])
 def test_mono_matte_grey_checker_keeps_its_light(cell):
     # the grey checker through a mono camera (12-bit shot noise): without colour, the demosaicing's
-    # polarization along the squares' straight edges is coherent and cannot be told from a
-    # highlight's by the one-colour step, so 0.976-0.988 is kept (the colour camera's 0.98 is not
-    # reached at 16 pixels); `imin` keeps 0.90-0.96
+    # polarization along the squares' straight edges is coherent and only the edge fit (step 0)
+    # tells it from a highlight's; with the gradient at two scales it keeps the colour camera's
+    # 0.98 (with the 3 x 3 alone 0.976 at 16 pixels); `imin` keeps 0.90-0.96
     from polcam.polarimetry import synthesize
 
     rng = np.random.default_rng(3)
@@ -257,7 +257,7 @@ def test_mono_matte_grey_checker_keeps_its_light(cell):
     ic = cam.mean(axis=0)
     kept = _separate(cam).diffuse.sum() / ic.sum()
     imin = polcam.separate(cam, method="imin").diffuse.sum() / ic.sum()
-    assert kept >= 0.97 and kept > imin + 0.02, (kept, imin)
+    assert kept >= 0.98 and kept > imin + 0.02, (kept, imin)
 
 
 def test_mono_matte_sphere_with_polarized_diffuse_keeps_its_rims():
