@@ -142,14 +142,14 @@ def matte_scene(index: int, *, size: int = 128) -> tuple[np.ndarray, np.ndarray,
 
     Rectangles of 6-48 pixels (8-40 of them; 35 % grey, 35 % tinted by up to 15 % per channel, 30 %
     of a saturated colour, each channel 0.05-1 of the largest) at levels 0.05-0.8 on a ground of
-    0.1-0.7, under white light (60 %) or a tint of 0.7-1.3 per channel, scaled by
-    0.5-1.3 and kept under 0.95; unpolarized, with the shot noise of a 5,000-30,000-electron full well,
-    12-bit, through the IMX250MYR mosaic and the default demosaicing.  Their edges carry the
-    demosaicing's false polarization and overshoot, and nothing in them is specular: the stage's
-    target there is 0 (what it keeps of a matte surface, :func:`harm_checks`, is learned, not only
-    checked).  A pale rectangle beside a saturated one is whiter than its neighbour, as a highlight
-    on a coloured material is, with no light of ``G``'s colour on it.  Returns the stack ((4, H, W, 3) float32), the true diffuse ((H, W, 3)) and the object
-    mask (all True).
+    0.1-0.7, under white light (60 %) or a tint of 0.7-1.3 per channel, scaled by 0.5-1.3 and kept
+    under 0.95; unpolarized, with the shot noise of a 5,000-30,000-electron full well, 12-bit,
+    through the IMX250MYR mosaic and the default demosaicing.  Their edges carry the demosaicing's
+    false polarization and overshoot, and nothing in them is specular: the stage's target there is
+    0 (what it keeps of a matte surface, :func:`harm_checks`, is learned, not only checked).  A pale
+    rectangle beside a saturated one is whiter than its neighbour, as a highlight on a coloured
+    material is, with no light of ``G``'s colour on it.  Returns the stack ((4, H, W, 3) float32),
+    the true diffuse ((H, W, 3)) and the object mask (all True).
     """
     rng = np.random.default_rng((_MATTE_STREAM, int(index)))
     d = np.full((size, size, 3), rng.uniform(0.1, 0.7))
