@@ -59,7 +59,10 @@ def without_edge_polarization(stack: Any, *, order: int = 1) -> Any:
         if order >= 2:
             regs += [_imageops.sobel(gx, 1, 0), _imageops.sobel(gy, 0, 1), _imageops.sobel(gx, 0, 1)]
         n = len(regs)
-        ata = np.array([[float((regs[i] * regs[j]).sum()) for j in range(n)] for i in range(n)])
+        ata = np.zeros((n, n))
+        for i in range(n):                # symmetric: each product once
+            for j in range(i, n):
+                ata[i, j] = ata[j, i] = float((regs[i] * regs[j]).sum())
         fits = []
         for t in (q[..., c], u[..., c]):
             atb = np.array([float((r * t).sum()) for r in regs])
