@@ -23,6 +23,13 @@ sys.path.remove(str(HERE))
 
 GOLDEN = dict(np.load(HERE / "outputs.npz"))
 ATOL = 1e-6
+#: The tensor methods iterate a singular value thresholding whose BLAS products round differently
+#: under OpenBLAS's CPU kernels (``OPENBLAS_CORETYPE``, chosen per machine): on the 32 x 32 input,
+#: six kernels (Haswell, Zen, Sandybridge, Prescott, Nehalem, SkylakeX) moved the layers from the
+#: pinned ones by at most 1.54e-3 (tensor), 4.6e-4 (tensor-tau), 3.2e-4 (tensor-plain), and by at
+#: most 5.6e-5 on the mean.  Their pins hold to 4e-3 per pixel and 2e-4 on the mean: a change of
+#: the method moves many pixels, a kernel's rounding a few.
+SOLVER_ATOL, SOLVER_MEAN = 4e-3, 2e-4
 
 
 @pytest.fixture(scope="module")
@@ -48,5 +55,8 @@ def test_output_unchanged(current, key):
         d = np.abs(got.astype(np.float64) - want)
         d = np.minimum(d, np.pi - d)
         assert d.max(initial=0.0) <= ATOL, key
+    elif key.startswith("sep/tensor"):
+        d = np.abs(got.astype(np.float64) - want)
+        assert d.max(initial=0.0) <= SOLVER_ATOL and d.mean() <= SOLVER_MEAN, (key, d.max(), d.mean())
     else:
         np.testing.assert_allclose(got, want, rtol=0, atol=ATOL, err_msg=key)
