@@ -28,8 +28,10 @@ from tests.faults._process_helpers import (
 def test_dead_worker_costs_its_frame_then_ctrl_c_stops_after_the_frames_in_progress(tmp_path):
     """kill -9 of a busy worker (what the out-of-memory killer does): its frame is reported failed
     with the reason and the batch goes on; then one SIGINT to the process group (a terminal's
-    Ctrl-C) lets the frames in progress finish, starts no new one, writes the summary, exits 130."""
-    frames = make_frames(tmp_path / "raw", 6)
+    Ctrl-C) lets the frames in progress finish, starts no new one, writes the summary, exits 130.
+    Twelve frames: on a fast machine a worker finishes one of six before the signal arrives, and all
+    six could have started by then."""
+    frames = make_frames(tmp_path / "raw", 12)
     out = tmp_path / "out"
     p = start(tmp_path / "raw", out, "--workers", "2", *SLOW)
     try:
