@@ -13,7 +13,7 @@ import numpy as np
 
 from polcam import _imageops
 from polcam._xp import namespace
-from polcam.separation._common import LIT, max3, sum3
+from polcam.separation._common import LIT, max3, min3, sum3
 from polcam.separation._illuminant import SATURATED
 
 __all__ = ["declipped", "fill_clipped_highlights", "smooth_fill"]
@@ -188,7 +188,9 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
     >= 0 (each border pixel's weight in the share, its intensity: dim pixels' votes are noise);
     numpy or torch.  Returns the layer, of the same kind,
     and counts of the pixels with a channel clipped at all four angles: ``clipped_pixels``,
-    ``clipped_filled`` (filled in part or whole) and ``clipped_as_measured`` (left as measured).
+    ``clipped_filled`` (filled in part or whole), ``clipped_as_measured`` (not filled, every channel
+    clipped: left as measured) and ``clipped_seen`` (not filled, some channel still measured: the
+    layer ``diffuse`` kept, which polarized-residual's step 4 separated on those channels).
 
     At such a pixel that channel is not measured at all, so nothing under the clipping is known
     from the pixel itself.  Each 8-connected clipped region is filled only when its surroundings
@@ -204,19 +206,24 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
 
     The fill is the border's diffuse interpolated smoothly into the region (:func:`smooth_fill`),
     so it has the colour of its own material, never above the measurement in any channel; a
-    region's weight blends it with the measured light, and a region with weight 0 is left as
-    measured (its specular layer is 0 there).  The labelling and the pyramid run on the host
+    region's weight blends it with what the region holds unfilled, and a region with weight 0 is
+    left so: the measured light where every channel is clipped (its specular layer is 0 there), the
+    layer ``diffuse`` where some channel is still measured.  The labelling and the pyramid run on the host
     (numpy and OpenCV); a torch array's masks and layer are copied there and back, only when a
     pixel is clipped.
     """
     xp = namespace(diffuse)
     sat_px = max3(measured) >= SATURATED       # a channel clipped at all four angles
     n_sat = int(sat_px.sum())
-    stats = {"clipped_pixels": n_sat, "clipped_filled": 0, "clipped_as_measured": n_sat}
+    all_blind = min3(measured) >= SATURATED     # every channel clipped at all four angles
+    n_blind = int(all_blind.sum())
+    stats = {"clipped_pixels": n_sat, "clipped_filled": 0, "clipped_as_measured": n_blind,
+             "clipped_seen": n_sat - n_blind}
     if n_sat == 0:
         return diffuse, stats
     if not colour_seen:
-        return xp.where(sat_px[..., None], measured, diffuse), stats
+        return xp.where(sat_px[..., None], measured, diffuse), {**stats, "clipped_as_measured": n_sat,
+                                                                "clipped_seen": 0}
     sat_h = xp.to_numpy(sat_px)
     spec_h = xp.to_numpy(spec)
     dif_h = xp.to_numpy(diffuse).astype(np.float32)
@@ -230,8 +237,11 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
     tot = np.bincount(lab_d[ring], weights=lw[ring], minlength=n_cc)
     weight = np.clip((hits / np.maximum(tot, 1e-12) - _RING_SHARE) / _RING_RAMP + 0.5, 0.0, 1.0)
     weight[0] = 0.0
-    out = np.where(sat_h[..., None], mea_h, dif_h)           # unfilled clipped pixels: as measured
-    stats_filled = 0
+    # unfilled clipped pixels: as measured where every channel is blind; where some channel still
+    # sees, the layer (its polarized light removed on the seeing channels, step 4)
+    blind_h = xp.to_numpy(all_blind)
+    out = np.where(blind_h[..., None], mea_h, dif_h)
+    stats_filled = filled_blind = 0
     boxes = cv2.connectedComponentsWithStats(sat_h.astype(np.uint8), connectivity=8)[2]
     h, w = sat_h.shape
     for k in np.flatnonzero(weight > 0):
@@ -252,8 +262,10 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
         lum = smooth_fill(dif_h[ya:yb, xa:xb].sum(axis=-1, keepdims=True), reg, known)[..., 0]
         fill = np.clip(lum[reg][:, None] * colour[None], 0.0, mea_h[ya:yb, xa:xb][reg])
         sub = out[ya:yb, xa:xb]
-        sub[reg] = wk * fill + (1.0 - wk) * mea_h[ya:yb, xa:xb][reg]
+        sub[reg] = wk * fill + (1.0 - wk) * sub[reg]
         stats_filled += int(reg.sum())
+        filled_blind += int((reg & blind_h[ya:yb, xa:xb]).sum())
     stats["clipped_filled"] = stats_filled
-    stats["clipped_as_measured"] = n_sat - stats["clipped_filled"]
+    stats["clipped_as_measured"] = n_blind - filled_blind
+    stats["clipped_seen"] = n_sat - n_blind - (stats_filled - filled_blind)
     return xp.asarray(out, like=diffuse), stats

@@ -193,8 +193,9 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         (H, W, 3) (or (H, W)) float32 in [0, mean over angles]; a tensor for a tensor stack.
     info : dict
         ``illuminant`` (RGB, mean 1), ``illuminant_source``, ``efficiency`` (colour stacks), ``clipped_pixels``,
-        ``clipped_filled``, ``clipped_as_measured`` (pixels with a channel clipped at all four
-        angles, and how they were treated), ``residual_ratio`` (unpolarized / polarized specular
+        ``clipped_filled``, ``clipped_as_measured``, ``clipped_seen`` (pixels with a channel
+        clipped at all four angles, and how they were treated: filled, left as measured with every
+        channel clipped, separated on the channels still measured), ``residual_ratio`` (unpolarized / polarized specular
         light; 0 unless ``unpolarized="measured"``); unless ``unpolarized="measured"`` on a mono
         stack, ``diffuse_like_share`` (in [0, 1]: how much of the edge-coherent polarization follows
         the edges, the weight of steps 3 and 4) and, with ``unpolarized="learned"``,
@@ -324,6 +325,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
     xp = namespace(s)
     measured = s.mean(axis=0)
     clipped_any = (s >= SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
+    blind = (s >= SATURATED).all(axis=0)                    # (H, W, 3): a channel clipped at all four angles
     s = _declip(s, opts)
     g, eff, est, source = _illuminant(s, opts)
     gx = xp.asarray(g, like=s)                              # the same (3,) float32 where the stack is
@@ -351,7 +353,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
         if keep is not None:
             keep["diffuse_polarization"] = xp.astype(diffuse, xp.float32)
     if opts["unpolarized"] != "measured" and opts["one_colour"]:
-        diffuse = _one_specular_colour(diffuse, ic, gx, share, gate)
+        diffuse = _one_specular_colour(diffuse, ic, gx, share, gate, blind=blind)
     if opts["evidence"]:
         diffuse = _highlight_evidence(diffuse, ic, gx, window=_odd(float(opts["evidence_window"]) * v["side"]))
     if keep is not None:
@@ -492,7 +494,8 @@ def _edge_polarization_given_back(diffuse: Any, v: dict[str, Any], weight: float
     return xp.minimum(diffuse + weight * share * (ic - imin), ic)
 
 
-def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent: Any) -> Any:
+def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent: Any,
+                         blind: Any = None) -> Any:
     """Step 4: what is removed is a multiple of ``G``, between two readings of the removal.
 
     ``a_min``, the largest multiple of ``G`` under every channel's removal, keeps all of the
@@ -514,6 +517,12 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     one-colour removal would leave behind; there the per-channel removal ``diffuse`` is kept, by
     the share ``f = sum_c max(R_c, 0) / sum_c Ic_c`` the pixel loses:
     ``D = D1 + beta (diffuse - D1)``, ``beta`` a ramp over :data:`_PER_CHANNEL_SHARE`.
+
+    ``blind`` ((H, W, 3) bool or None): the channels clipped at all four angles.  Such a channel
+    shows no polarization, so its removal (0) says nothing of the specular light; where a pixel has
+    both blind and seeing channels, ``a_min`` and ``a_G`` are read on the seeing channels alone
+    (with no two-colour fit: two channels cannot tell two colours apart), and the blind channel
+    loses the same multiple of ``G``.
     """
     xp = namespace(diffuse)
     removed = ic - diffuse
@@ -521,11 +530,23 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     spec, dominant = specular_part(removed, diffuse, gx, a_g, body_dominant=True)
     a_min = xp.minimum(xp.maximum(min3(removed / gx), 0.0), spec)
     a_g = xp.where(dominant, xp.minimum(a_g, spec), a_g)
+    if blind is not None and not bool(blind.any()):
+        blind = None
+    if blind is not None:
+        seen = ~blind
+        part = blind.any(axis=-1) & seen.any(axis=-1)
+        least = min3(xp.where(seen, removed / gx, float("inf")))
+        a_min = xp.where(part, xp.maximum(least, 0.0), a_min)
+        g_seen = xp.where(seen, gx, 0.0)
+        a_seen = sum3(removed * g_seen) / xp.maximum(sum3(g_seen * g_seen), _LIGHT_GUARD)
+        a_g = xp.where(part, xp.maximum(a_seen, 0.0), a_g)
     a = a_min + coherent * (1.0 - weight) * xp.maximum(a_g - a_min, 0.0)
     one = xp.maximum(ic - a[..., None] * gx, 0.0)
     lo, hi = _PER_CHANNEL_SHARE
     lost = sum3(xp.maximum(removed, 0.0)) / xp.maximum(sum3(ic), _LIGHT_GUARD)
     beta = xp.clip((lost - lo) / (hi - lo), 0.0, 1.0)[..., None]
+    if blind is not None:
+        diffuse = xp.where(blind, one, diffuse)        # a blind channel has no reading of its own
     return one + beta * (diffuse - one)
 
 

@@ -77,7 +77,9 @@ def test_clipped_region_fill_grows_with_its_polarized_border():
         out, stats = fill_clipped_highlights(measured.copy(), measured, spec.reshape(h, w), g)
         assert np.array_equal(out[~disk], measured[~disk])
         assert stats["clipped_pixels"] == disk.sum()
-        assert stats["clipped_filled"] + stats["clipped_as_measured"] == disk.sum()
+        assert stats["clipped_filled"] + stats["clipped_as_measured"] + stats["clipped_seen"] == disk.sum()
+        # only red is clipped there: not filled, the pixels keep the layer (here the measurement)
+        assert stats["clipped_as_measured"] == 0 and stats["clipped_seen"] == disk.sum() - stats["clipped_filled"]
         centre.append(float(out[20, 20].mean()))
         if share == 1.0:
             # filled with the surround's own colour (an orange material), not grey

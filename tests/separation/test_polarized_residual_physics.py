@@ -212,6 +212,35 @@ def test_polarized_highlight_on_a_dark_coloured_object_is_removed_as_polarized()
     assert np.allclose(s / g, (s / g).mean(axis=-1, keepdims=True), atol=2e-3)
 
 
+def test_highlight_clipped_in_one_channel_is_removed_on_the_others():
+    # a bright red glossy sphere, side light (specular DoLP ~0.66): the red channel is clipped at
+    # all four angles over the lit side and the highlight, green and blue stay measured.  The red
+    # channel is blind there; the other two still show the polarized specular light, which is
+    # removed from them (left as measured, as the whole pixel once was, they would lose none); the
+    # pixel stays red
+    sc = SceneSpec(name="red-gloss-clip", mesh="sphere", albedo=(0.75, 0.15, 0.1), ks=0.5, shininess=40.0,
+                   refractive_index=1.5, light_position=(3.0, 1.5, 1.5), light_intensity=1.4,
+                   ambient=0.05, **_SENSOR)
+    r = render(sc, size=192, seed=4)
+    cam = _camera(r.stack)
+    clipped = cam >= 0.98
+    spec_true = r.stack.mean(axis=0) - r.diffuse
+    blind_red = r.mask & clipped.all(axis=0)[..., 0] & ~clipped.any(axis=0)[..., 1:].any(axis=-1)
+    hl = blind_red & (spec_true[..., 1] > 0.1)
+    assert blind_red.sum() > 300 and hl.sum() > 30
+    res = _separate(cam)
+    measured = cam.mean(axis=0)
+    removed = (measured - res.diffuse)[hl]
+    # green and blue lose at least half their true specular light (its polarized part is ~0.66)
+    # and not more than it: not taken below the truth
+    assert removed[:, 1:].sum() >= 0.5 * spec_true[hl][:, 1:].sum()
+    assert removed[:, 1:].sum() <= 1.02 * spec_true[hl][:, 1:].sum()
+    assert np.all(res.diffuse[hl].mean(axis=0)[1:] >= r.diffuse[hl].mean(axis=0)[1:] - 0.02)
+    # red stays red, never grey or purple: red the largest, blue not above green beyond noise
+    d = res.diffuse[blind_red]
+    assert np.all(d[:, 0] > d[:, 1:].max(axis=-1)) and np.all(d[:, 2] <= d[:, 1] + 0.02)
+
+
 def test_real_yellow_block_between_dark_holes_keeps_its_light(shared_data):
     # the shared jcpd-15 stack (a real colour polarization stack, sampled in the IMX250MYR layout and
     # demosaiced as `polcam bench real` does): a bright yellow toy block whose face has dark holes in
