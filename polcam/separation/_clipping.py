@@ -225,47 +225,69 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
         return xp.where(sat_px[..., None], measured, diffuse), {**stats, "clipped_as_measured": n_sat,
                                                                 "clipped_seen": 0}
     sat_h = xp.to_numpy(sat_px)
-    spec_h = xp.to_numpy(spec)
     dif_h = xp.to_numpy(diffuse).astype(np.float32)
     mea_h = xp.to_numpy(measured).astype(np.float32)
     g_h = np.asarray(xp.to_numpy(g), np.float64)
     n_cc, lab = cv2.connectedComponents(sat_h.astype(np.uint8), connectivity=8)
-    lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
-    ring = (lab_d > 0) & ~sat_h
     lw = np.ones(sat_h.shape) if light is None else xp.to_numpy(light).astype(np.float64)
-    hits = np.bincount(lab_d[ring], weights=spec_h[ring].astype(np.float64) * lw[ring], minlength=n_cc)
-    tot = np.bincount(lab_d[ring], weights=lw[ring], minlength=n_cc)
-    weight = np.clip((hits / np.maximum(tot, 1e-12) - _RING_SHARE) / _RING_RAMP + 0.5, 0.0, 1.0)
-    weight[0] = 0.0
+    weight = _highlight_votes(lab, n_cc, sat_h, xp.to_numpy(spec).astype(np.float64), lw)
     # unfilled clipped pixels: as measured where every channel is blind; where some channel still
     # sees, the layer (its polarized light removed on the seeing channels, step 4)
     blind_h = xp.to_numpy(all_blind)
     out = np.where(blind_h[..., None], mea_h, dif_h)
     stats_filled = filled_blind = 0
     boxes = cv2.connectedComponentsWithStats(sat_h.astype(np.uint8), connectivity=8)[2]
-    h, w = sat_h.shape
     for k in np.flatnonzero(weight > 0):
-        x0, y0, bw, bh, area = (int(v) for v in boxes[k])
-        r = max(4, int(np.ceil(np.sqrt(area / np.pi))))      # the band: as wide as the region's radius
-        ya, yb, xa, xb = max(y0 - r - 2, 0), min(y0 + bh + r + 2, h), max(x0 - r - 2, 0), min(x0 + bw + r + 2, w)
-        reg = lab[ya:yb, xa:xb] == k
-        band = (cv2.dilate(reg.astype(np.uint8), np.ones((2 * r + 5, 2 * r + 5), np.uint8)) > 0) & ~sat_h[ya:yb, xa:xb]
-        px = dif_h[ya:yb, xa:xb][band]
-        colour, spread, body = _material_colour(px, g_h)
-        wk = weight[k] * float(np.clip(2.0 - spread / _ONE_MATERIAL, 0.0, 1.0))
-        if wk <= 0:
-            continue
-        # the intensity under the region: interpolated from the border's body-colour pixels only (the
-        # others still hold some of the highlight's specular light)
-        known = np.zeros(band.shape, np.float32)
-        known[band] = body
-        lum = smooth_fill(dif_h[ya:yb, xa:xb].sum(axis=-1, keepdims=True), reg, known)[..., 0]
-        fill = np.clip(lum[reg][:, None] * colour[None], 0.0, mea_h[ya:yb, xa:xb][reg])
-        sub = out[ya:yb, xa:xb]
-        sub[reg] = wk * fill + (1.0 - wk) * sub[reg]
-        stats_filled += int(reg.sum())
-        filled_blind += int((reg & blind_h[ya:yb, xa:xb]).sum())
+        reg, window = _fill_region(out, dif_h, mea_h, g_h, lab, k, boxes[k], sat_h, float(weight[k]))
+        if reg is not None:
+            stats_filled += int(reg.sum())
+            filled_blind += int((reg & blind_h[window]).sum())
     stats["clipped_filled"] = stats_filled
     stats["clipped_as_measured"] = n_blind - filled_blind
     stats["clipped_seen"] = n_sat - n_blind - (stats_filled - filled_blind)
     return xp.asarray(out, like=diffuse), stats
+
+
+def _highlight_votes(lab: np.ndarray, n_cc: int, sat: np.ndarray, spec: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """Each labelled clipped region's weight in [0, 1] from its 2-pixel border's vote ((n_cc,); 0 for
+    the background label): the light-weighted share of the border marked as specular light ``spec``,
+    on a ramp from none below ``_RING_SHARE - _RING_RAMP / 2`` to whole above ``_RING_SHARE +
+    _RING_RAMP / 2``."""
+    lab_d = cv2.dilate(lab.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.int64)
+    ring = (lab_d > 0) & ~sat
+    hits = np.bincount(lab_d[ring], weights=spec[ring] * light[ring], minlength=n_cc)
+    tot = np.bincount(lab_d[ring], weights=light[ring], minlength=n_cc)
+    weight = np.clip((hits / np.maximum(tot, 1e-12) - _RING_SHARE) / _RING_RAMP + 0.5, 0.0, 1.0)
+    weight[0] = 0.0
+    return weight
+
+
+def _fill_region(out: np.ndarray, dif: np.ndarray, mea: np.ndarray, g: np.ndarray, lab: np.ndarray, k: int,
+                 box: np.ndarray, sat: np.ndarray, vote: float) -> tuple[np.ndarray | None, tuple[slice, slice]]:
+    """Fill clipped region ``k`` of ``lab`` in ``out`` (in place) when its band is one material.
+
+    The band around the region is as wide as its radius; its body colour and spread come from
+    :func:`_material_colour`, and the region's weight is ``vote`` times the one-material ramp.  The
+    fill (the band's body-colour intensity interpolated by :func:`smooth_fill`, times the body
+    colour, never above ``mea``) is blended with what ``out`` holds there.  Returns the region's
+    mask in its window and the window ((None, window) where its weight is 0: left unfilled).
+    """
+    h, w = sat.shape
+    x0, y0, bw, bh, area = (int(v) for v in box)
+    r = max(4, int(np.ceil(np.sqrt(area / np.pi))))      # the band: as wide as the region's radius
+    window = (slice(max(y0 - r - 2, 0), min(y0 + bh + r + 2, h)), slice(max(x0 - r - 2, 0), min(x0 + bw + r + 2, w)))
+    reg = lab[window] == k
+    band = (cv2.dilate(reg.astype(np.uint8), np.ones((2 * r + 5, 2 * r + 5), np.uint8)) > 0) & ~sat[window]
+    colour, spread, body = _material_colour(dif[window][band], g)
+    wk = vote * float(np.clip(2.0 - spread / _ONE_MATERIAL, 0.0, 1.0))
+    if wk <= 0:
+        return None, window
+    # the intensity under the region: interpolated from the border's body-colour pixels only (the
+    # others still hold some of the highlight's specular light)
+    known = np.zeros(band.shape, np.float32)
+    known[band] = body
+    lum = smooth_fill(dif[window].sum(axis=-1, keepdims=True), reg, known)[..., 0]
+    fill = np.clip(lum[reg][:, None] * colour[None], 0.0, mea[window][reg])
+    sub = out[window]
+    sub[reg] = wk * fill + (1.0 - wk) * sub[reg]
+    return reg, window

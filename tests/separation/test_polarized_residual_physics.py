@@ -188,18 +188,24 @@ def test_polarized_specular_on_a_white_object_is_removed():
     assert res.specular[hl].sum() / spec_true[hl].sum() >= 0.7
 
 
+def _side_lit_sphere(name: str, albedo: tuple[float, float, float], *, ks: float, shininess: float,
+                     light_intensity: float, ambient: float, size: int, seed: int):
+    """A glossy sphere lit from the side (specular DoLP ~0.65) through the camera: the render, the
+    camera's stack and the true specular light (H, W, 3)."""
+    sc = SceneSpec(name=name, mesh="sphere", albedo=albedo, ks=ks, shininess=shininess, refractive_index=1.5,
+                   light_position=(3.0, 1.5, 1.5), light_intensity=light_intensity, ambient=ambient, **_SENSOR)
+    r = render(sc, size=size, seed=seed)
+    return r, _camera(r.stack), r.stack.mean(axis=0) - r.diffuse
+
+
 def test_polarized_highlight_on_a_dark_coloured_object_is_removed_as_polarized():
     # a dark brown glossy sphere, side light: the highlight is Fresnel-polarized (DoLP ~0.65) and
     # G-coloured; after the mosaic and demosaicing each channel's polarization at the small, sharp
     # lobe is off by its own error, so the least removal over the channels reads it low.  The image's
     # polarization crosses its edges (specular-like), so the removal is read on G: close to what the
     # polarization minimum removes (a planted-truth check on the one-colour step's bias)
-    sc = SceneSpec(name="dark-gloss", mesh="sphere", albedo=(0.12, 0.06, 0.03), ks=0.5, shininess=80.0,
-                   refractive_index=1.5, light_position=(3.0, 1.5, 1.5), light_intensity=0.7,
-                   ambient=0.1, **_SENSOR)
-    r = render(sc, size=256, seed=3)
-    cam = _camera(r.stack)
-    spec_true = r.stack.mean(axis=0) - r.diffuse
+    r, cam, spec_true = _side_lit_sphere("dark-gloss", (0.12, 0.06, 0.03), ks=0.5, shininess=80.0,
+                                         light_intensity=0.7, ambient=0.1, size=256, seed=3)
     hl = r.mask & (spec_true.sum(axis=-1) > 0.15)
     assert hl.sum() > 500 and r.stack.max() < 0.98
     res = _separate(cam)
@@ -218,13 +224,9 @@ def test_highlight_clipped_in_one_channel_is_removed_on_the_others():
     # channel is blind there; the other two still show the polarized specular light, which is
     # removed from them (left as measured, as the whole pixel once was, they would lose none); the
     # pixel stays red
-    sc = SceneSpec(name="red-gloss-clip", mesh="sphere", albedo=(0.75, 0.15, 0.1), ks=0.5, shininess=40.0,
-                   refractive_index=1.5, light_position=(3.0, 1.5, 1.5), light_intensity=1.4,
-                   ambient=0.05, **_SENSOR)
-    r = render(sc, size=192, seed=4)
-    cam = _camera(r.stack)
+    r, cam, spec_true = _side_lit_sphere("red-gloss-clip", (0.75, 0.15, 0.1), ks=0.5, shininess=40.0,
+                                         light_intensity=1.4, ambient=0.05, size=192, seed=4)
     clipped = cam >= 0.98
-    spec_true = r.stack.mean(axis=0) - r.diffuse
     blind_red = r.mask & clipped.all(axis=0)[..., 0] & ~clipped.any(axis=0)[..., 1:].any(axis=-1)
     hl = blind_red & (spec_true[..., 1] > 0.1)
     assert blind_red.sum() > 300 and hl.sum() > 30
