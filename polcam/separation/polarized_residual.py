@@ -545,9 +545,16 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     lo, hi = _PER_CHANNEL_SHARE
     lost = sum3(xp.maximum(removed, 0.0)) / xp.maximum(sum3(ic), _LIGHT_GUARD)
     beta = xp.clip((lost - lo) / (hi - lo), 0.0, 1.0)[..., None]
-    if blind is not None:
-        diffuse = xp.where(blind, one, diffuse)        # a blind channel has no reading of its own
-    return one + beta * (diffuse - one)
+    if blind is None:
+        return one + beta * (diffuse - one)
+    # a blind channel has no reading of its own: it loses the one multiple of G, but reached the
+    # white level where the seeing channels did not, so per unit of G it is left no darker than the
+    # darkest of them (a seeing channel's polarization misread near the clipping would otherwise
+    # take it to a dark pit)
+    out = one + beta * (xp.where(blind, one, diffuse) - one)
+    least = min3(xp.where(blind, float("inf"), out / gx))
+    part = (blind.any(axis=-1) & ~blind.all(axis=-1))[..., None]
+    return xp.where(blind & part, xp.maximum(out, xp.minimum(least[..., None] * gx, ic)), out)
 
 
 def _highlight_evidence(diffuse: Any, ic: Any, gx: Any, *, window: int) -> Any:
