@@ -190,7 +190,8 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
     and counts of the pixels with a channel clipped at all four angles: ``clipped_pixels``,
     ``clipped_filled`` (filled in part or whole), ``clipped_as_measured`` (not filled, every channel
     clipped: left as measured) and ``clipped_seen`` (not filled, some channel still measured: the
-    layer ``diffuse`` kept, which polarized-residual's step 4 separated on those channels).
+    layer ``diffuse`` kept, which polarized-residual's step 4 separated on those channels, or left
+    as measured where a clipped channel measures less than a seeing one per unit of ``G``).
 
     At such a pixel that channel is not measured at all, so nothing under the clipping is known
     from the pixel itself.  Each 8-connected clipped region is filled only when its surroundings

@@ -547,14 +547,15 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     beta = xp.clip((lost - lo) / (hi - lo), 0.0, 1.0)[..., None]
     if blind is None:
         return one + beta * (diffuse - one)
-    # a blind channel has no reading of its own: it loses the one multiple of G, but reached the
-    # white level where the seeing channels did not, so per unit of G it is left no darker than the
-    # darkest of them (a seeing channel's polarization misread near the clipping would otherwise
-    # take it to a dark pit)
+    # a blind channel has no reading of its own: it loses the one multiple of G.  Measured below a
+    # seeing channel per unit of G, it was cut by the clipping more than the pixel's colour shows,
+    # and that multiple (read on the seeing channels, misread high near the clipping where one of
+    # them sees under a weak illuminant component) would take it to a dark pit: such a pixel is
+    # left as measured
     out = one + beta * (xp.where(blind, one, diffuse) - one)
-    least = min3(xp.where(blind, float("inf"), out / gx))
-    part = (blind.any(axis=-1) & ~blind.all(axis=-1))[..., None]
-    return xp.where(blind & part, xp.maximum(out, xp.minimum(least[..., None] * gx, ic)), out)
+    part = blind.any(axis=-1) & ~blind.all(axis=-1)
+    hidden = min3(xp.where(blind, ic / gx, float("inf"))) < min3(xp.where(blind, float("inf"), ic / gx))
+    return xp.where((part & hidden)[..., None], ic, out)
 
 
 def _highlight_evidence(diffuse: Any, ic: Any, gx: Any, *, window: int) -> Any:

@@ -178,9 +178,10 @@ def test_blind_channels_lose_the_seeing_channels_multiple_of_g_without_pits():
     # Row 0: green and blue each lose 0.2 G of polarized light: red loses the same 0.2 G, where the
     # old reading (the least over all three channels, red's 0) removed nothing anywhere.  Row 1: red
     # and green blind, blue (under a weak blue illuminant) misreads a large removal, 0.38 of its 0.73:
-    # the same multiple of G would take red and green to 0, a dark pit; they keep, per unit of G,
-    # blue's level (here more than they measured, so their measurement).  Row 2: every channel
-    # blind: nothing is removed.
+    # the same multiple of G would take red and green to 0, a dark pit.  Per unit of G they measure
+    # less than blue (0.83 and 0.77 against 1.83): the clipping hides more of them than the pixel's
+    # colour shows, so the pixel is left as measured.  Row 2: every channel blind: nothing is
+    # removed.
     g = np.array([1.2, 1.3, 0.4], np.float32)
     ic = np.array([[[1.0, 0.7, 0.4]], [[1.0, 1.0, 0.73]], [[1.0, 1.0, 1.0]]], np.float32)
     removed = np.array([[[0.0, 0.26, 0.08]], [[0.0, 0.0, 0.38]], [[0.0, 0.0, 0.0]]], np.float32)
@@ -191,9 +192,7 @@ def test_blind_channels_lose_the_seeing_channels_multiple_of_g_without_pits():
     old = pres._one_specular_colour(*args)
     np.testing.assert_allclose(old[0], ic[0])                          # the blind red hid the rest
     np.testing.assert_allclose(d[0, 0], ic[0, 0] - 0.2 * g, atol=1e-5)  # one colour, red included
-    assert d[1, 0, 2] == pytest.approx(0.73 - 0.38, abs=1e-5)
-    np.testing.assert_allclose(d[1, 0, :2], np.minimum(d[1, 0, 2] / g[2] * g[:2], ic[1, 0, :2]), rtol=1e-5)
-    assert d[1, 0, :2].min() > 0.9
+    np.testing.assert_allclose(d[1], ic[1])
     np.testing.assert_allclose(d[2], ic[2])
 
 
