@@ -522,7 +522,8 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     shows no polarization, so its removal (0) says nothing of the specular light; where a pixel has
     both blind and seeing channels, ``a_min`` and ``a_G`` are read on the seeing channels alone
     (with no two-colour fit: two channels cannot tell two colours apart), and the blind channel
-    loses the same multiple of ``G``.
+    loses the same multiple of ``G``; where a blind channel measures less than a seeing one per
+    unit of ``G`` (``min_blind Ic_c / G_c < min_seeing Ic_s / G_s``) the pixel is left at ``Ic``.
     """
     xp = namespace(diffuse)
     removed = ic - diffuse
