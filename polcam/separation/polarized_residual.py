@@ -195,7 +195,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         ``illuminant`` (RGB, mean 1), ``illuminant_source``, ``efficiency`` (colour stacks), ``clipped_pixels``,
         ``clipped_filled``, ``clipped_as_measured``, ``clipped_seen`` (pixels with a channel
         clipped at all four angles, and how they were treated: filled, left as measured with every
-        channel clipped, separated on the channels still measured), ``residual_ratio`` (unpolarized / polarized specular
+        channel clipped, separated on the channels still measured unless step 4 left the pixel as
+        measured), ``residual_ratio`` (unpolarized / polarized specular
         light; 0 unless ``unpolarized="measured"``); unless ``unpolarized="measured"`` on a mono
         stack, ``diffuse_like_share`` (in [0, 1]: how much of the edge-coherent polarization follows
         the edges, the weight of steps 3 and 4) and, with ``unpolarized="learned"``,
@@ -324,8 +325,9 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
     """
     xp = namespace(s)
     measured = s.mean(axis=0)
-    clipped_any = (s >= SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
-    blind = (s >= SATURATED).all(axis=0)                    # (H, W, 3): a channel clipped at all four angles
+    at_white = s >= SATURATED                               # (4, H, W, 3): a sample at the white level
+    clipped_any = at_white.any(axis=(0, 3))                 # (H, W): a sample of the pixel at the white level
+    blind = at_white.all(axis=0)                            # (H, W, 3): a channel clipped at all four angles
     s = _declip(s, opts)
     g, eff, est, source = _illuminant(s, opts)
     gx = xp.asarray(g, like=s)                              # the same (3,) float32 where the stack is
@@ -535,7 +537,7 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
         blind = None
     if blind is not None:
         seen = ~blind
-        part = blind.any(axis=-1) & seen.any(axis=-1)
+        part = blind.any(axis=-1) & seen.any(axis=-1)   # (H, W): some channel blind, some seeing
         least = min3(xp.where(seen, removed / gx, float("inf")))
         a_min = xp.where(part, xp.maximum(least, 0.0), a_min)
         g_seen = xp.where(seen, gx, 0.0)
@@ -554,7 +556,6 @@ def _one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent
     # them sees under a weak illuminant component) would take it to a dark pit: such a pixel is
     # left as measured
     out = one + beta * (xp.where(blind, one, diffuse) - one)
-    part = blind.any(axis=-1) & ~blind.all(axis=-1)
     hidden = min3(xp.where(blind, ic / gx, float("inf"))) < min3(xp.where(blind, float("inf"), ic / gx))
     return xp.where((part & hidden)[..., None], ic, out)
 
