@@ -13,7 +13,7 @@ import numpy as np
 
 from polcam import _imageops
 from polcam._xp import namespace
-from polcam.separation._common import LIT, max3, min3, sum3
+from polcam.separation._common import LIT, max3, sum3
 from polcam.separation._illuminant import SATURATED
 
 __all__ = ["declipped", "fill_clipped_highlights", "smooth_fill"]
@@ -180,13 +180,15 @@ def _material_colour(px: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, float, 
 
 
 def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
-                            light: Any = None, *, colour_seen: bool = True) -> tuple[Any, dict[str, int]]:
+                            light: Any = None, *, colour_seen: bool = True, blind: Any = None) -> tuple[Any, dict[str, int]]:
     """``polarized-residual``'s last step: clipped highlights filled smoothly with their own material's diffuse.
 
     ``diffuse`` and ``measured`` (the mean over angles as measured) are (H, W, 3), ``spec`` (H, W)
     bool or float in [0, 1] (how far each pixel shows specular light), ``light`` None or (H, W)
     >= 0 (each border pixel's weight in the share, its intensity: dim pixels' votes are noise);
-    numpy or torch.  Returns the layer, of the same kind,
+    numpy or torch.  ``blind`` ((H, W, 3) bool) marks the channels clipped at all four angles;
+    by default those whose mean ``measured`` is at the white level (polarized-residual passes the
+    same mask its step 4 read).  Returns the layer, of the same kind,
     and counts of the pixels with a channel clipped at all four angles: ``clipped_pixels``,
     ``clipped_filled`` (filled in part or whole), ``clipped_as_measured`` (not filled, every channel
     clipped: left as measured) and ``clipped_seen`` (not filled, some channel still measured: the
@@ -214,9 +216,11 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
     pixel is clipped.
     """
     xp = namespace(diffuse)
-    sat_px = max3(measured) >= SATURATED       # a channel clipped at all four angles
+    if blind is None:
+        blind = measured >= SATURATED
+    sat_px = blind.any(axis=-1)       # a channel clipped at all four angles
     n_sat = int(sat_px.sum())
-    all_blind = min3(measured) >= SATURATED     # every channel clipped at all four angles
+    all_blind = blind.all(axis=-1)     # every channel clipped at all four angles
     n_blind = int(all_blind.sum())
     stats = {"clipped_pixels": n_sat, "clipped_filled": 0, "clipped_as_measured": n_blind,
              "clipped_seen": n_sat - n_blind}

@@ -1,7 +1,7 @@
 """polarized-residual's step 4: what is removed is a multiple of the illuminant's colour ``G``.
 
 docs/methods/polarized-residual.md, "Colour stacks, as implemented", step 4 (with its blind
-channels: a colour channel clipped at all four polarizer angles).  One implementation for numpy
+channels: a colour channel whose mean over the four polarizer angles is at the white level).  One implementation for numpy
 and PyTorch (:mod:`polcam._xp`).
 """
 
@@ -50,8 +50,9 @@ def one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent:
     the share ``f = sum_c max(R_c, 0) / sum_c Ic_c`` the pixel loses:
     ``D = D1 + beta (diffuse - D1)``, ``beta`` a ramp over :data:`PER_CHANNEL_SHARE`.
 
-    ``blind`` ((H, W, 3) bool or None): the channels clipped at all four angles.  Such a channel
-    shows no polarization, so its removal (0) says nothing of the specular light; where a pixel has
+    ``blind`` ((H, W, 3) bool or None): the blind channels, whose mean over the four angles is at
+    the white level (every sample within 0.08 of full scale; step 6 and the learned stage use the
+    same definition).  Such a channel shows no polarization, so its removal (0) says nothing of the specular light; where a pixel has
     both blind and seeing channels, ``a_min`` and ``a_G`` are read on the seeing channels alone
     (with no two-colour fit: two channels cannot tell two colours apart), and the blind channel
     loses the same multiple of ``G``; where a blind channel measures less than a seeing one per

@@ -320,7 +320,9 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
     measured = s.mean(axis=0)
     at_white = s >= SATURATED                               # (4, H, W, 3): a sample at the white level
     clipped_any = at_white.any(axis=(0, 3))                 # (H, W): a sample of the pixel at the white level
-    blind = at_white.all(axis=0)                            # (H, W, 3): a channel clipped at all four angles
+    # (H, W, 3): a channel blind, its four samples' mean at the white level (each sample within 0.08
+    # of full scale, so its polarization is not measured); steps 4, 6 and 7 read this one definition
+    blind = measured >= SATURATED
     s = _declip(s, opts)
     g, eff, est, source = _illuminant(s, opts)
     gx = xp.asarray(g, like=s)                              # the same (3,) float32 where the stack is
@@ -353,7 +355,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
         diffuse = _highlight_evidence(diffuse, ic, gx, window=_odd(float(opts["evidence_window"]) * v["side"]))
     if keep is not None:
         keep["evidence_bounded"] = xp.astype(diffuse, xp.float32)
-    diffuse, clip_stats = _clipped_highlights(diffuse, measured, ic, spec, gx,
+    diffuse, clip_stats = _clipped_highlights(diffuse, measured, ic, spec, gx, blind,
                                               removed_share=opts["unpolarized"] != "measured", colour_seen=colour_seen)
     info = {**clip_stats, "illuminant": [float(x) for x in g], "illuminant_source": source,
             "efficiency": [float(x) for x in eff], "residual_ratio": ratio, "residual_ratio_source": ratio_source,
@@ -501,7 +503,7 @@ def _highlight_evidence(diffuse: Any, ic: Any, gx: Any, *, window: int) -> Any:
     return xp.maximum(diffuse, ic - excess[..., None] * gx)
 
 
-def _clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, gx: Any,
+def _clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, gx: Any, blind: Any,
                         *, removed_share: bool, colour_seen: bool) -> tuple[Any, dict[str, int]]:
     """Step 6: regions clipped at all four angles filled when their border is a highlight of one material.
 
@@ -516,7 +518,7 @@ def _clipped_highlights(diffuse: Any, measured: Any, ic: Any, spec: Any, gx: Any
         light = sum3(ic)
         share = sum3(ic - diffuse) / xp.maximum(light, _LIGHT_GUARD)
         spec = xp.clip((share - _HIGHLIGHT_BORDER) / _HIGHLIGHT_BORDER + 0.5, 0.0, 1.0)
-    return fill_clipped_highlights(diffuse, measured, spec, gx, light, colour_seen=colour_seen)
+    return fill_clipped_highlights(diffuse, measured, spec, gx, light, colour_seen=colour_seen, blind=blind)
 
 
 def _within_measured(diffuse: Any, measured: Any, gx: Any) -> Any:
