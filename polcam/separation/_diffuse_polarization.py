@@ -96,11 +96,19 @@ def diffuse_like_share(q: Any, u: Any, axis: tuple[Any, Any, Any]) -> float:
     return along / (along + across) if along + across > 0 else 1.0
 
 
+#: Coherence under which the structure tensor has no axis: float32 rounding of its components (about
+#: 1e-7 of their size) leaves a coherence of that order where the tensor is isotropic.
+_NO_AXIS = 1e-5
+
+
 def edge_axis(lum: Any, smooth: int) -> tuple[Any, Any, Any]:
     """The gradient's doubled-angle axis ``(cos 2 psi, sin 2 psi)`` and its coherence, each (H, W).
 
     The structure tensor of ``lum`` (Sobel gradients, products Gaussian-smoothed over ``smooth``
-    pixels); AoLP convention as in :func:`radial_share`.
+    pixels); AoLP convention as in :func:`radial_share`.  Where the coherence is under
+    :data:`_NO_AXIS` (the tensor isotropic to rounding error, as at the centre of a symmetric
+    highlight) there is no axis: ``(0, 0)``, rather than a direction the rounding of each backend
+    draws differently.
     """
     xp = namespace(lum)
     gx = _imageops.sobel(lum, 1, 0)
@@ -112,7 +120,7 @@ def edge_axis(lum: Any, smooth: int) -> tuple[Any, Any, Any]:
     s = -2.0 * jxy
     n = xp.hypot(c, s)
     coh = n / xp.maximum(jxx + jyy, 1e-20)
-    safe = n > 0
+    safe = coh > _NO_AXIS
     c2 = xp.where(safe, c / xp.where(safe, n, 1.0), 0.0)
     s2 = xp.where(safe, s / xp.where(safe, n, 1.0), 0.0)
     return c2, s2, coh
