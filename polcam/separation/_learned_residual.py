@@ -11,7 +11,7 @@ own whiteness: a pixel paler than its material holds light of ``G``'s colour; Ta
 2005), how much polarized light was removed there and whether that light crosses the edges
 (specular) or follows them (diffuse, at rims).
 
-This stage maps those local measures (:func:`features`, 35 per pixel, ratios free of the exposure
+This stage maps those local measures (:func:`features`, 34 per pixel, ratios free of the exposure
 but for the measured level) to the share of the light it may remove, along ``G``, that is
 unpolarized specular:
 
@@ -20,8 +20,8 @@ unpolarized specular:
     D' = D - s G,                             p = the coherent polarized light at the pixel,
 
 inside the neighbourhood of coherent polarized light (the highlight gate of
-:func:`polcam.separation._residual.highlight_mask`, dilated) and off clipped pixels; nothing is
-removed elsewhere.  ``e`` (:func:`polcam.separation._highlight.peak_excess`, in units of ``G``, the
+:func:`polcam.separation._residual.highlight_mask`, dilated) and off the pixels whose every channel
+is blind; nothing is removed elsewhere.  ``e`` (:func:`polcam.separation._highlight.peak_excess`, in units of ``G``, the
 floor the larger of the opening and the lower-quartile rank opening over a square of
 :data:`EVIDENCE_WINDOW` of the larger side) is the evidence of a
 highlight at the place: a uniform matte patch does not rise above itself, so it is never thinned.
@@ -29,10 +29,12 @@ highlight at the place: a uniform matte patch does not rise above itself, so it 
 highlight that covers its surroundings does not rise above them, but its polarized part is seen
 (polarized-residual's ``evidence=True`` leaves it out: the rise alone bounds the removal).
 The removal is one multiple of ``G`` per pixel (the layer keeps one specular colour) and never more
-than the layer holds.  Clipped pixels (a channel at the white level) do not show their colour or
-level; polarized-residual's clipped fill treats them.
+than the layer holds, in every channel: a blind channel (its mean over the four angles at the
+white level, which shows neither its level nor its polarization) loses the same multiple, as in
+polarized-residual's step 4, and so keeps the least value its measurement allows.  A pixel whose
+every channel is blind shows nothing; polarized-residual's clipped fill treats it.
 
-The MLP (35 -> 24 -> 24 -> 1, tanh) is trained by ``polcam bench train-residual``
+The MLP (34 -> 24 -> 24 -> 1, tanh) is trained by ``polcam bench train-residual``
 (:mod:`polcam.bench.residual_training`) on the randomized scene family's training seeds only
 (:func:`polcam.synth.family.training_seeds`, disjoint from validation and test), whose albedo
 photographs are public domain or CC0, so the weights ship.  Kernel sizes are shares of the image's
@@ -69,7 +71,7 @@ _EPS = 1e-4
 #: The features, in order (names stored with the weights and checked when they load).
 FEATURES = (
     "removed/L", "smax/L", "white", "diffuse_white", "dolp", "gate", "gate@13", "gate@37",
-    "a_eff/L", "share", "clipped", "measured_max",
+    "a_eff/L", "share", "measured_max",
     "P", "P_pixel", "coherence", "coherent_dolp", "P*gate@19", "P*gate@49", "P@49",
     "log L/L@9", "log removed@9/L", "white@9-white",
     "log L/L@25", "log removed@25/L", "white@25-white",
@@ -143,7 +145,7 @@ def removal_bound(diffuse: Any, ic: Any, gx: Any, side: int, polarized: Any = No
 
 
 def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
-             axis: tuple[Any, Any, Any], measured: Any, saturated: float, bound: Any, where: Any) -> Any:
+             axis: tuple[Any, Any, Any], measured: Any, bound: Any, where: Any) -> Any:
     """The per-pixel measures the model reads, at the ``where`` pixels.
 
     Parameters
@@ -162,7 +164,7 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     axis
         The structure tensor's ``(cos 2 psi, sin 2 psi, coherence)``, each (H, W).
     measured
-        (H, W, 3) the mean over the four angles as measured; ``saturated`` its white level.
+        (H, W, 3) the mean over the four angles as measured.
     bound
         (H, W) :func:`removal_bound`.
     where
@@ -172,7 +174,7 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     -------
     x : array
         (N, 35) float32, the ``where`` pixels in row-major order, :data:`FEATURES` in order: ratios
-        and logs of ratios (free of the exposure), the clipped flag and the measured level.
+        and logs of ratios (free of the exposure) and the measured level.
         Neighbourhood measures are computed over the whole image, the pixel's own only where
         wanted.
     """
@@ -208,7 +210,7 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
          xp.clip(sum3(icw - at(v["imin"])) / xp.maximum(sum3(icw), _EPS), 0.0, 1.0),
          at(gate), g(gate, 13), g(gate, 37),
          at(a_eff) * float(gx.mean()) / lw, xp.zeros(lw.shape, like=lw) + float(share),
-         xp.astype(mmax >= saturated, xp.float32), mmax,
+         mmax,
          at(along), (qs * c2w + us * s2w) / xp.maximum(xp.hypot(qs, us), 1e-6), at(coh), at(nn) / 3.0 / lw,
          g(along * gate, 19), g(along * gate, 49), g(along, 49)]
     f += _neighbourhood(light, removed, white, bound, at, lw, ww, side)
@@ -243,16 +245,21 @@ def _neighbourhood(light: Any, removed: Any, white: Any, bound: Any, at: Any, lw
     return f
 
 
-def zone(gate: Any, measured: Any, saturated: float, side: int, bound: Any) -> Any:
+def zone(gate: Any, blind: Any, side: int, bound: Any) -> Any:
     """(H, W) bool: where the stage may act.
 
     The highlight gate's support dilated by :data:`_ZONE` pixels (at :data:`TRAIN_SIDE`), less the
-    pixels whose measured mean reaches ``saturated`` in a channel and those whose ``bound``
-    (:func:`removal_bound`) is 0, where nothing could be removed.
+    pixels whose every channel is blind (``blind`` (H, W, 3) bool: a channel's mean over the four
+    angles at the white level), the partly blind pixels off the gate itself, and those whose
+    ``bound`` (:func:`removal_bound`) is 0, where nothing could be removed.  A blind channel hides
+    the pixel's colour, which the model's whiteness measures then misread (a clipped matte white
+    wall looks like a pale shade of a coloured material); coherent polarized light at the pixel is
+    the evidence of a highlight that colour cannot give there.
     """
     xp = namespace(gate)
     near = _imageops.dilate(xp.astype(gate > 0, xp.float32), _k(_ZONE, side)) > 0
-    return near & (max3(measured) < saturated) & (bound > 0)
+    part = blind.any(axis=-1)
+    return near & ~blind.all(axis=-1) & (~part | (gate > 0)) & (bound > 0)
 
 
 def forward(x: Any, weights: dict[str, np.ndarray]) -> Any:
@@ -328,13 +335,14 @@ def load_weights(path: str | Path | None = None) -> dict[str, np.ndarray]:
 
 
 def stage_inputs(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
-                 axis: tuple[Any, Any, Any], measured: Any, saturated: float, *,
+                 axis: tuple[Any, Any, Any], measured: Any, blind: Any, *,
                  rise_only: bool = False) -> dict[str, Any]:
     """What the stage reads: ``bound`` (:func:`removal_bound`), ``zone`` (:func:`zone`) and ``x``
-    (:func:`features` of the zone's pixels).  Arguments as :func:`features`; ``rise_only`` leaves
-    the polarized light out of the bound (the rise above the surroundings alone)."""
+    (:func:`features` of the zone's pixels).  Arguments as :func:`features` and :func:`zone`;
+    ``rise_only`` leaves the polarized light out of the bound (the rise above the surroundings
+    alone)."""
     side = int(v["side"])
     bound = removal_bound(diffuse, v["ic"], gx, side, None if rise_only else a_eff * gate)
-    where = zone(gate, measured, saturated, side, bound)
-    x = features(diffuse, v, gx, gate, a_eff, share, axis, measured, saturated, bound, where)
+    where = zone(gate, blind, side, bound)
+    x = features(diffuse, v, gx, gate, a_eff, share, axis, measured, bound, where)
     return {"x": x, "bound": bound, "zone": where}

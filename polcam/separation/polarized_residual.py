@@ -364,25 +364,25 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
         info["polarized_colour"] = [float(x) for x in est.polarized]
     diffuse = _within_measured(diffuse, measured, gx)
     if opts["unpolarized"] == "learned" or (inputs is not None and opts["unpolarized"] == "none"):
-        diffuse, info["learned_specular"] = _learned_stage(diffuse, v, gx, gate, a_eff, share, axis, measured,
+        diffuse, info["learned_specular"] = _learned_stage(diffuse, v, gx, gate, a_eff, share, axis, measured, blind,
                                                            run=opts["unpolarized"] == "learned", inputs=inputs,
                                                            rise_only=bool(opts["evidence"]))
     return xp.astype(diffuse, xp.float32), info
 
 
 def _learned_stage(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
-                   axis: tuple[Any, Any, Any], measured: Any, *, run: bool,
+                   axis: tuple[Any, Any, Any], measured: Any, blind: Any, *, run: bool,
                    inputs: dict[str, Any] | None, rise_only: bool) -> tuple[Any, float]:
     """Step 7 (``unpolarized="learned"``): the unpolarized specular light a small model reads, removed along ``G``.
 
-    :mod:`polcam.separation._learned_residual`: near coherent polarized light, off clipped pixels,
-    and at most the pixel's rise above its surroundings or its polarized light
+    :mod:`polcam.separation._learned_residual`: near coherent polarized light, off pixels whose every
+    channel is ``blind``, and at most the pixel's rise above its surroundings or its polarized light
     (:data:`polcam.separation._learned_residual.POLARIZED_RATIO` times it; the rise alone with
     ``rise_only``, as ``evidence=True`` asks).  Returns the layer (unchanged unless
     ``run``) and the light removed as a share of the layer's light; ``inputs`` (a dict or None)
     receives the model's inputs.
     """
-    read = _learned_inputs(diffuse, v, gx, gate, a_eff, share, axis, measured, SATURATED, rise_only=rise_only)
+    read = _learned_inputs(diffuse, v, gx, gate, a_eff, share, axis, measured, blind, rise_only=rise_only)
     if inputs is not None:
         inputs.update(read, diffuse=diffuse, g=gx)
     if not run:

@@ -71,6 +71,26 @@ def test_the_removal_is_one_colour_bounded_by_the_layer_and_inside_the_zone(scen
     np.testing.assert_allclose(info["learned_specular"], removed.sum() / none.sum(), rtol=1e-4)
 
 
+def test_partly_blind_pixels_are_separated_in_one_colour() -> None:
+    """A highlight that clipped some channels of a pale blue sphere (validation seed 85): the stage
+    acts on its partly blind pixels (not where every channel is blind), takes one multiple of ``G``
+    from every channel there, the blind ones too, and brings the seeing channels closer to the
+    truth."""
+    sc = render_family(85, size=128)
+    inputs = learned_inputs(sc.stack)
+    zone, g = np.asarray(inputs["zone"]), np.asarray(inputs["g"])
+    blind = sc.stack.mean(axis=0) >= 0.98
+    part = zone & blind.any(-1) & ~blind.all(-1)
+    assert part.sum() > 300 and not (zone & blind.all(-1)).any()
+    learned, _ = separate_polarized_residual(sc.stack)
+    before = np.asarray(inputs["diffuse"])
+    share = (before - learned)[part] / g
+    assert np.abs(share - share.mean(-1, keepdims=True)).max() < 1e-5 and share.max() > 0
+    seeing = part[..., None] & ~blind
+    assert (before - learned)[seeing].sum() > 0.1 * before[seeing].sum()
+    assert ((learned - sc.diffuse)[seeing] ** 2).mean() < 0.7 * ((before - sc.diffuse)[seeing] ** 2).mean()
+
+
 def test_the_stage_brings_glossy_validation_scenes_closer_to_the_truth() -> None:
     """Ground truth of the randomized family (validation seeds, never trained on): the glossy scenes'
     diffuse gets closer to the truth with the stage than without it, on the mean."""
