@@ -173,7 +173,7 @@ def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, sh
     Returns
     -------
     x : array
-        (N, 35) float32, the ``where`` pixels in row-major order, :data:`FEATURES` in order: ratios
+        (N, 34) float32, the ``where`` pixels in row-major order, :data:`FEATURES` in order: ratios
         and logs of ratios (free of the exposure) and the measured level.
         Neighbourhood measures are computed over the whole image, the pixel's own only where
         wanted.
