@@ -20,8 +20,9 @@ unpolarized specular:
     D' = D - s G,                             p = the coherent polarized light at the pixel,
 
 inside the neighbourhood of coherent polarized light (the highlight gate of
-:func:`polcam.separation._residual.highlight_mask`, dilated) and off the pixels whose every channel
-is blind; nothing is removed elsewhere.  ``e`` (:func:`polcam.separation._highlight.peak_excess`, in units of ``G``, the
+:func:`polcam.separation._residual.highlight_mask`, dilated; a pixel with a blind channel only on the
+gate itself, :func:`zone`) and off the pixels whose every channel is blind; nothing is removed
+elsewhere.  ``e`` (:func:`polcam.separation._highlight.peak_excess`, in units of ``G``, the
 floor the larger of the opening and the lower-quartile rank opening over a square of
 :data:`EVIDENCE_WINDOW` of the larger side) is the evidence of a
 highlight at the place: a uniform matte patch does not rise above itself, so it is never thinned.

@@ -1,8 +1,8 @@
 """polarized-residual's step 4: what is removed is a multiple of the illuminant's colour ``G``.
 
 docs/methods/polarized-residual.md, "Colour stacks, as implemented", step 4 (with its blind
-channels: a colour channel whose mean over the four polarizer angles is at the white level).  One implementation for numpy
-and PyTorch (:mod:`polcam._xp`).
+channels: a colour channel whose mean over the four polarizer angles is at the white level).  One
+implementation for numpy and PyTorch (:mod:`polcam._xp`).
 """
 
 from __future__ import annotations
@@ -52,7 +52,8 @@ def one_specular_colour(diffuse: Any, ic: Any, gx: Any, weight: float, coherent:
 
     ``blind`` ((H, W, 3) bool or None): the blind channels, whose mean over the four angles is at
     the white level (every sample within 0.08 of full scale; step 6 and the learned stage use the
-    same definition).  Such a channel shows no polarization, so its removal (0) says nothing of the specular light; where a pixel has
+    same definition).  Such a channel shows no polarization worth reading, so its removal (0, or
+    the clipping's remnant) says nothing of the specular light; where a pixel has
     both blind and seeing channels, ``a_min`` and ``a_G`` are read on the seeing channels alone
     (with no two-colour fit: two channels cannot tell two colours apart), and the blind channel
     loses the same multiple of ``G``; where a blind channel measures less than a seeing one per
