@@ -233,7 +233,7 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
     dif_h = xp.to_numpy(diffuse).astype(np.float32)
     mea_h = xp.to_numpy(measured).astype(np.float32)
     g_h = np.asarray(xp.to_numpy(g), np.float64)
-    n_cc, lab = cv2.connectedComponents(sat_h.astype(np.uint8), connectivity=8)
+    n_cc, lab, boxes, _ = cv2.connectedComponentsWithStats(sat_h.astype(np.uint8), connectivity=8)
     lw = np.ones(sat_h.shape) if light is None else xp.to_numpy(light).astype(np.float64)
     weight = _highlight_votes(lab, n_cc, sat_h, xp.to_numpy(spec).astype(np.float64), lw)
     # unfilled clipped pixels: as measured where every channel is blind; where some channel still
@@ -241,7 +241,6 @@ def fill_clipped_highlights(diffuse: Any, measured: Any, spec: Any, g: Any,
     blind_h = xp.to_numpy(all_blind)
     out = np.where(blind_h[..., None], mea_h, dif_h)
     stats_filled = filled_blind = 0
-    boxes = cv2.connectedComponentsWithStats(sat_h.astype(np.uint8), connectivity=8)[2]
     for k in np.flatnonzero(weight > 0):
         reg, window = _fill_region(out, dif_h, mea_h, g_h, lab, k, boxes[k], sat_h, float(weight[k]))
         if reg is not None:

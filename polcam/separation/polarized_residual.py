@@ -318,8 +318,7 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
     """
     xp = namespace(s)
     measured = s.mean(axis=0)
-    at_white = s >= SATURATED                               # (4, H, W, 3): a sample at the white level
-    clipped_any = at_white.any(axis=(0, 3))                 # (H, W): a sample of the pixel at the white level
+    clipped_any = (s >= SATURATED).any(axis=(0, 3))       # (H, W): a sample of the pixel at the white level
     # (H, W, 3): a channel blind, its four samples' mean at the white level (each sample within 0.08
     # of full scale, so its polarization is not measured); steps 4, 6 and 7 read this one definition
     blind = measured >= SATURATED
