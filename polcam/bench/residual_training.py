@@ -1,7 +1,9 @@
 """Training of polarized-residual's learned unpolarized-specular stage on the randomized scene family.
 
 Run ``polcam bench train-residual`` to remake ``polcam/separation/residual_weights.npz``
-(a few minutes on two cores).  The scenes are the randomized family's training seeds
+(a few minutes on two cores), ``--camera mono`` for ``residual_weights_mono.npz``, the weights of
+mono stacks (trained on the family's mono camera, the same way; their harm checks are the same
+scenes through the mono camera).  The scenes are the randomized family's training seeds
 (:func:`polcam.synth.family.training_seeds`; validation and test never share one), rendered and
 demosaiced as a camera gives them (:func:`polcam.synth.family.render_family`); their albedo
 photographs are public domain or CC0, so the weights ship.
@@ -50,7 +52,7 @@ from polcam.separation.polarized_residual import LEARNED_FEATURES, learned_input
 from polcam.synth.family import render_family, training_seeds
 
 __all__ = ["DEFAULT_HIDDEN", "DEFAULT_L2", "DEFAULT_ITERATIONS", "DEFAULT_SAMPLES", "DEFAULT_SCENES",
-           "DEFAULT_MATTE_SCENES", "DEFAULT_MATTE_SAMPLES", "HARM_FLOORS", "scene_samples", "matte_scene",
+           "DEFAULT_MATTE_SCENES", "DEFAULT_MATTE_SAMPLES", "CAMERAS", "HARM_FLOORS", "scene_samples", "matte_scene",
            "training_samples", "fit", "train", "grey_checker", "colour_chart", "harm_checks", "failed_checks", "save_weights"]
 
 #: Hidden layer widths.
@@ -75,6 +77,9 @@ DEFAULT_SAMPLES = 1_000_000
 #: there is the bound's (edge overshoot and false polarization), not the training's.
 DEFAULT_MATTE_SCENES = 100
 DEFAULT_MATTE_SAMPLES = 100_000
+#: The cameras a set of weights is trained for: the family's colour camera (IMX250MYR) and its mono
+#: camera (IMX250MZR, whose stacks polarized-residual runs as grey colour stacks, with their own weights).
+CAMERAS = ("colour", "mono")
 #: The random stream of the matte scenes (independent of the family's seeds).
 _MATTE_STREAM = 0x6D617474
 #: Least error (MSE, linear light) a scene's weight is taken at: 45 dB.
@@ -97,17 +102,35 @@ CHART_PATCHES = np.array([
     [(0.88,) * 3, (0.58,) * 3, (0.36,) * 3, (0.19,) * 3, (0.09,) * 3, (0.03,) * 3]])
 
 
-def scene_samples(seed: int, *, size: int = 128) -> dict[str, np.ndarray]:
-    """One training scene's samples: ``x`` (N, F) float32, ``target``, ``bound``, ``weight`` (N,) float64."""
+def scene_samples(seed: int, *, size: int = 128, camera: str = "colour") -> dict[str, np.ndarray]:
+    """One training scene's samples: ``x`` (N, F) float32, ``target``, ``bound``, ``weight`` (N,) float64.
+
+    ``camera="mono"``: of the scene's mono camera (its ``mono_stack``, which polarized-residual runs as
+    a grey colour stack, against ``diffuse_mono``).
+    """
     sc = render_family(seed, size=size)
+    if _camera(camera) == "mono":
+        return _samples_of(sc.mono_stack, sc.diffuse_mono, sc.mask)
     return _samples_of(sc.stack, sc.diffuse, sc.mask)
 
 
+def _camera(camera: str) -> str:
+    if camera not in CAMERAS:
+        raise ValueError(f"camera={camera!r}: expected one of {', '.join(CAMERAS)}")
+    return camera
+
+
 def _samples_of(stack: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[str, np.ndarray]:
-    """The stage's samples of one scene (its zone's pixels) given its true diffuse and object mask."""
+    """The stage's samples of one scene (its zone's pixels) given its true diffuse and object mask.
+
+    ``stack`` (4, H, W, 3) with ``truth`` (H, W, 3), or mono (4, H, W) with ``truth`` (H, W): the
+    mono layer is the mean of the grey stack's three equal channels, each of which holds the truth.
+    """
     inputs = learned_inputs(stack)
     d, g = np.asarray(inputs["diffuse"], np.float64), np.asarray(inputs["g"], np.float64)
     t = np.asarray(truth, np.float64)
+    if t.ndim == 2:
+        t = t[..., None]
     gsq = float((g * g).sum())
     bound = np.asarray(inputs["bound"], np.float64)
     target = np.clip(((d - t) * g).sum(-1) / gsq, 0.0, bound)
@@ -121,12 +144,15 @@ def _samples_of(stack: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> dict[
 
 def training_samples(n: int, *, size: int = 128, start: int = 0, max_samples: int = DEFAULT_SAMPLES,
                      seed: int = 0, matte: int = DEFAULT_MATTE_SCENES,
-                     matte_samples: int = DEFAULT_MATTE_SAMPLES) -> dict[str, np.ndarray]:
+                     matte_samples: int = DEFAULT_MATTE_SAMPLES, camera: str = "colour") -> dict[str, np.ndarray]:
     """The samples of ``n`` training scenes, a random subset of at most ``max_samples`` pixels, and
-    of ``matte`` :func:`matte_scene` scenes, a random subset of at most ``matte_samples`` pixels."""
-    out = _subset([scene_samples(sd, size=size) for sd in training_seeds(n, start=start)], max_samples, seed)
+    of ``matte`` :func:`matte_scene` scenes, a random subset of at most ``matte_samples`` pixels,
+    all through ``camera`` (:data:`CAMERAS`)."""
+    out = _subset([scene_samples(sd, size=size, camera=camera) for sd in training_seeds(n, start=start)],
+                  max_samples, seed)
     if matte > 0 and matte_samples > 0:
-        flat = _subset([_samples_of(*matte_scene(i, size=size)) for i in range(matte)], matte_samples, seed + 1)
+        flat = _subset([_samples_of(*matte_scene(i, size=size, camera=camera)) for i in range(matte)],
+                       matte_samples, seed + 1)
         out = {k: np.concatenate([out[k], flat[k]]) for k in out}
     return out
 
@@ -137,7 +163,7 @@ def _subset(parts: list[dict[str, np.ndarray]], most: int, seed: int) -> dict[st
     return {k: v[keep] for k, v in out.items()}
 
 
-def matte_scene(index: int, *, size: int = 128) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def matte_scene(index: int, *, size: int = 128, camera: str = "colour") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A matte training scene: grey, near-grey and coloured rectangles, no specular light, as the camera gives it.
 
     Rectangles of 6-48 pixels (8-40 of them; 35 % grey, 35 % tinted by up to 15 % per channel, 30 %
@@ -149,7 +175,9 @@ def matte_scene(index: int, *, size: int = 128) -> tuple[np.ndarray, np.ndarray,
     0 (what it keeps of a matte surface, :func:`harm_checks`, is learned, not only checked).  A pale
     rectangle beside a saturated one is whiter than its neighbour, as a highlight on a coloured
     material is, with no light of ``G``'s colour on it.  Returns the stack ((4, H, W, 3) float32),
-    the true diffuse ((H, W, 3)) and the object mask (all True).
+    the true diffuse ((H, W, 3)) and the object mask (all True); with ``camera="mono"`` the same
+    scene's luminance (the channels' mean) through the IMX250MZR mosaic and its default demosaicing
+    ((4, H, W) and (H, W)).
     """
     rng = np.random.default_rng((_MATTE_STREAM, int(index)))
     d = np.full((size, size, 3), rng.uniform(0.1, 0.7))
@@ -165,16 +193,20 @@ def matte_scene(index: int, *, size: int = 128) -> tuple[np.ndarray, np.ndarray,
         d[y0:y0 + hh, x0:x0 + ww] = rng.uniform(0.05, 0.8) * tint
     light = np.ones(3) if rng.random() < 0.6 else rng.uniform(0.7, 1.3, 3)
     d = np.clip(d * light * rng.uniform(0.5, 1.3), 0.0, 0.95)
+    if _camera(camera) == "mono":
+        d = d.mean(axis=-1)
     return _matte_camera(d, rng.uniform(5000.0, 30000.0), rng), d, np.ones((size, size), bool)
 
 
 def _matte_camera(d: np.ndarray, full_well: float, rng: np.random.Generator) -> np.ndarray:
-    """Unpolarized light ``d`` ((H, W, 3)) as the camera gives it: shot noise of ``full_well`` electrons,
-    12 bits, the IMX250MYR mosaic and the default demosaicing ((4, H, W, 3) float32)."""
+    """Unpolarized light ``d`` as the camera gives it: shot noise of ``full_well`` electrons, 12 bits,
+    the IMX250MYR mosaic and the default demosaicing for ``d`` (H, W, 3) ((4, H, W, 3) float32), the
+    IMX250MZR ones for ``d`` (H, W) ((4, H, W))."""
+    layout = "imx250mzr" if d.ndim == 2 else "imx250myr"
     st = synthesize(d, np.zeros_like(d), np.zeros_like(d))
     st = np.round(np.clip(rng.poisson(st * full_well) / full_well, 0, 1) * 4095) / 4095
-    raw = mosaic_stack(np.clip(st, 0.0, 1.0), layout="imx250myr")
-    return np.clip(demosaic(raw, layout="imx250myr"), 0.0, 1.0).astype(np.float32)
+    raw = mosaic_stack(np.clip(st, 0.0, 1.0), layout=layout)
+    return np.clip(demosaic(raw, layout=layout), 0.0, 1.0).astype(np.float32)
 
 
 def _shapes(n_in: int, hidden: tuple[int, ...]) -> Iterator[tuple[tuple[int, int], tuple[int]]]:
@@ -239,43 +271,49 @@ def fit(samples: dict[str, np.ndarray], *, hidden: tuple[int, ...] = DEFAULT_HID
 def train(n: int = DEFAULT_SCENES, *, size: int = 128, start: int = 0, max_samples: int = DEFAULT_SAMPLES,
           hidden: tuple[int, ...] = DEFAULT_HIDDEN, l2: float = DEFAULT_L2,
           iterations: int = DEFAULT_ITERATIONS, seed: int = 0, matte: int = DEFAULT_MATTE_SCENES,
-          matte_samples: int = DEFAULT_MATTE_SAMPLES) -> dict[str, np.ndarray]:
-    """Render ``n`` training scenes and ``matte`` matte ones and fit the model (:func:`training_samples`, :func:`fit`)."""
+          matte_samples: int = DEFAULT_MATTE_SAMPLES, camera: str = "colour") -> dict[str, np.ndarray]:
+    """Render ``n`` training scenes and ``matte`` matte ones through ``camera`` and fit the model
+    (:func:`training_samples`, :func:`fit`)."""
     samples = training_samples(n, size=size, start=start, max_samples=max_samples, seed=seed, matte=matte,
-                               matte_samples=matte_samples)
+                               matte_samples=matte_samples, camera=camera)
     return fit(samples, hidden=hidden, l2=l2, iterations=iterations, seed=seed)
 
 
-def grey_checker(cell: int) -> np.ndarray:
+def grey_checker(cell: int, *, camera: str = "colour") -> np.ndarray:
     """A 128 x 160 matte grey checker of ``cell``-pixel squares as the camera gives it ((4, H, W, 3) float32).
 
     Squares at 0.55 and 0.18 each varied by up to 10 %, white light, no specular, 12-bit shot noise of a
-    20,000-electron full well, the IMX250MYR mosaic and the default demosaicing.
+    20,000-electron full well, the IMX250MYR mosaic and the default demosaicing; with
+    ``camera="mono"`` the IMX250MZR ones ((4, H, W)).
     """
     rng = np.random.default_rng(3)
     h, w = 128, 160
     yy, xx = np.mgrid[:h, :w]
     level = np.where(((yy // cell) + (xx // cell)) % 2 == 0, 0.55, 0.18)
     level = level * (1.0 + 0.1 * rng.random((h // cell + 1, w // cell + 1))[yy // cell, xx // cell])
-    return _matte_camera(np.repeat(level[..., None], 3, axis=-1), 20000.0, rng)
+    return _matte_camera(level if _camera(camera) == "mono" else np.repeat(level[..., None], 3, axis=-1), 20000.0, rng)
 
 
-def colour_chart(cell: int = 20, gap: int = 6, *, frame: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def colour_chart(cell: int = 20, gap: int = 6, *, frame: tuple[int, int] | None = None,
+                 camera: str = "colour") -> tuple[np.ndarray, np.ndarray]:
     """A matte colour chart as the camera gives it, and the mask of each of its grey patches.
 
     The 4 x 6 patches of :data:`CHART_PATCHES` (``cell`` pixels square, 0.9 of their reflectance)
     on black (0.02) with ``gap`` pixels between them and around them: every window of the evidence
     bound holds dark gaps.  With ``frame`` = (H, W) the chart sits in the middle of a frame of that
     size whose surround is a mid grey (0.18), as in a lab shot.  White light, no specular, 12-bit
-    shot noise of a 20,000-electron full well, the IMX250MYR mosaic and the default demosaicing.
+    shot noise of a 20,000-electron full well, the IMX250MYR mosaic and the default demosaicing; with
+    ``camera="mono"`` the chart's luminance (each patch's mean over R, G and B) through the
+    IMX250MZR ones, to which every patch is a grey.
 
     Returns
     -------
     stack : numpy.ndarray
-        (4, H, W, 3) float32 in [0, 1]; without ``frame``, ``H = 4 (cell + gap) + gap`` and
-        ``W = 6 (cell + gap) + gap``.
+        (4, H, W, 3) float32 in [0, 1] ((4, H, W) mono); without ``frame``, ``H = 4 (cell + gap) + gap``
+        and ``W = 6 (cell + gap) + gap``.
     greys : numpy.ndarray
-        (6, H, W) bool: the inside (3 pixels in from the edges) of each grey patch, white first.
+        (6, H, W) bool: the inside (3 pixels in from the edges) of each grey patch, white first; mono
+        (24, H, W): of every patch, row by row.
     """
     pitch = cell + gap
     ch, cw = 4 * pitch + gap, 6 * pitch + gap
@@ -285,17 +323,18 @@ def colour_chart(cell: int = 20, gap: int = 6, *, frame: tuple[int, int] | None 
     d = np.full((h, w, 3), 0.18)
     y0, x0 = (h - ch) // 2, (w - cw) // 2
     d[y0:y0 + ch, x0:x0 + cw] = 0.02
-    greys = np.zeros((6, h, w), bool)
+    mono = _camera(camera) == "mono"
+    greys = np.zeros((24 if mono else 6, h, w), bool)
     for r in range(4):
         for c in range(6):
             y, x = y0 + gap + r * pitch, x0 + gap + c * pitch
             d[y:y + cell, x:x + cell] = 0.9 * CHART_PATCHES[r, c]
-            if r == 3:
-                greys[c, y + 3:y + cell - 3, x + 3:x + cell - 3] = True
-    return _matte_camera(d, 20000.0, np.random.default_rng(5)), greys
+            if mono or r == 3:
+                greys[6 * r + c if mono else c, y + 3:y + cell - 3, x + 3:x + cell - 3] = True
+    return _matte_camera(d.mean(axis=-1) if mono else d, 20000.0, np.random.default_rng(5)), greys
 
 
-def harm_checks(weights: dict[str, np.ndarray]) -> dict[str, float]:
+def harm_checks(weights: dict[str, np.ndarray], *, camera: str = "colour") -> dict[str, float]:
     """What polarized-residual with these weights keeps of matte scenes (:data:`HARM_FLOORS` keys).
 
     For grey checkers of 16- and 32-pixel squares: ``checkerN_kept``, the layer's light over the
@@ -304,18 +343,21 @@ def harm_checks(weights: dict[str, np.ndarray]) -> dict[str, float]:
     least of that ratio over its six grey patches, and ``chart_frame_worst_grey`` the same for the
     chart of 30-pixel patches in a 1224 x 1024 frame (the physics tests' lab shot: a set that held
     the small chart at 0.988 kept 0.958 of a grey there).  The layer is polarized-residual's default
-    one with ``weights`` in its learned stage.
+    one with ``weights`` in its learned stage.  ``camera="mono"``: the same scenes through the mono
+    camera, where the chart's worst grey is the worst of its 24 patches.
     """
     def kept(cam: np.ndarray, regions: Any) -> tuple[float, float]:
         """The layer's light over the measured light: overall, and the least over ``regions`` (masks)."""
-        layer = np.asarray(learned_layer(learned_inputs(cam), weights), np.float64).sum(axis=-1)
-        ic = cam.mean(axis=0).sum(axis=-1)
+        layer = np.asarray(learned_layer(learned_inputs(cam), weights), np.float64).mean(axis=-1)
+        ic = cam.mean(axis=0)
+        if ic.ndim == 3:
+            ic = ic.mean(axis=-1)
         return float(layer.sum() / ic.sum()), float(min(layer[r].sum() / ic[r].sum() for r in regions))
 
-    out = {"chart_worst_grey": kept(*colour_chart())[1],
-           "chart_frame_worst_grey": kept(*colour_chart(30, 8, frame=(1024, 1224)))[1]}
+    out = {"chart_worst_grey": kept(*colour_chart(camera=camera))[1],
+           "chart_frame_worst_grey": kept(*colour_chart(30, 8, frame=(1024, 1224), camera=camera))[1]}
     for cell in (16, 32):
-        cam = grey_checker(cell)
+        cam = grey_checker(cell, camera=camera)
         yy, xx = np.mgrid[:cam.shape[1], :cam.shape[2]]
         squares = (yy // cell) * 100 + (xx // cell)
         inner = ((yy % cell) >= 3) & ((yy % cell) < cell - 3) & ((xx % cell) >= 3) & ((xx % cell) < cell - 3)

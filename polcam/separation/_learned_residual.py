@@ -35,6 +35,14 @@ white level, which shows neither its level nor its polarization) loses the same 
 polarized-residual's step 4, and so keeps the least value its measurement allows.  A pixel whose
 every channel is blind shows nothing; polarized-residual's clipped fill treats it.
 
+A mono stack (run as a grey colour stack, ``G = (1, 1, 1)``) shows no colour: every surface is of
+``G``'s colour, so a pale matte patch rises above its surroundings as a highlight does and the
+whiteness measures cannot tell them apart.  There the bound is the polarized light alone,
+``b = min(min_c D_c / G_c, r p)`` (:func:`removal_bound`'s ``"polarized"``), and the model's weights
+are their own (:data:`MONO_WEIGHTS_FILE`, trained on the family's mono camera): with the colour
+weights and the rise bound the stage cost the family's matte mono scenes 1.2 dB
+(docs/decisions/mono-learned-stage.md).
+
 The MLP (34 -> 24 -> 24 -> 1, tanh) is trained by ``polcam bench train-residual``
 (:mod:`polcam.bench.residual_training`) on the randomized scene family's training seeds only
 (:func:`polcam.synth.family.training_seeds`, disjoint from validation and test), whose albedo
@@ -60,11 +68,16 @@ from polcam.errors import MethodError
 from polcam.separation._common import max3, min3, sum3
 from polcam.separation._highlight import EVIDENCE_MEDIAN, peak_excess
 
-__all__ = ["WEIGHTS_FILE", "TRAIN_SIDE", "FEATURES", "EVIDENCE_WINDOW", "POLARIZED_RATIO", "removal_bound", "features",
-           "zone", "apply", "forward", "load_weights", "stage_inputs"]
+__all__ = ["WEIGHTS_FILE", "MONO_WEIGHTS_FILE", "BOUND_EVIDENCE", "TRAIN_SIDE", "FEATURES", "EVIDENCE_WINDOW",
+           "POLARIZED_RATIO", "removal_bound", "features", "zone", "apply", "forward", "load_weights", "stage_inputs"]
 
-#: The shipped weights (made by ``polcam bench train-residual``).
+#: The shipped weights for colour stacks (made by ``polcam bench train-residual``).
 WEIGHTS_FILE = Path(__file__).with_name("residual_weights.npz")
+#: The shipped weights for mono stacks (``polcam bench train-residual --camera mono``).
+MONO_WEIGHTS_FILE = Path(__file__).with_name("residual_weights_mono.npz")
+#: How :func:`removal_bound` combines its two evidences: the rise above the surroundings ``e`` and the
+#: polarized light ``r p``.
+BOUND_EVIDENCE = ("either", "rise", "polarized", "both")
 #: The scenes' side the model is trained at; kernel sizes below are in pixels at this side.
 TRAIN_SIDE = 128
 #: Smallest light (in units of ``G``) a ratio is divided by: under one 12-bit code value (1/4095).
@@ -127,22 +140,31 @@ def _gather(a: Any, idx: Any) -> Any:
     return namespace(a).take(a.reshape((-1,) + tuple(a.shape[2:])), idx, 0)
 
 
-def removal_bound(diffuse: Any, ic: Any, gx: Any, side: int, polarized: Any = None) -> Any:
-    """The most the stage may remove, in units of ``G``: ``b = min(min_c D_c / G_c, max(e, r p))``, (H, W) float32 >= 0.
+def removal_bound(diffuse: Any, ic: Any, gx: Any, side: int, polarized: Any, *, evidence: str = "either") -> Any:
+    """The most the stage may remove, in units of ``G``: ``b = min(min_c D_c / G_c, E)``, (H, W) float32 >= 0.
 
     ``e`` is the rise of ``ic`` (H, W, 3) above its surroundings' floor
     (:func:`polcam.separation._highlight.peak_excess`, the floor of its openings over a square of
-    :data:`EVIDENCE_WINDOW` of the larger side ``side``); ``p`` (H, W, or None: 0) the coherent
-    polarized light at the pixel in units of ``G`` (the highlight gate times its amplitude over the
-    noise floor) and ``r`` :data:`POLARIZED_RATIO`: where a highlight's polarization is seen, its
-    unpolarized part may be up to ``r`` times it, however broad the highlight.
+    :data:`EVIDENCE_WINDOW` of the larger side ``side``); ``p`` (H, W) the coherent polarized light
+    at the pixel in units of ``G`` (the highlight gate times its amplitude over the noise floor) and
+    ``r`` :data:`POLARIZED_RATIO`: where a highlight's polarization is seen, its unpolarized part may
+    be up to ``r`` times it, however broad the highlight.  ``evidence`` (:data:`BOUND_EVIDENCE`) says
+    which bounds: ``E = max(e, r p)`` (``"either"``, colour stacks), ``e`` (``"rise"``, colour
+    stacks with ``evidence=True``), ``r p`` (``"polarized"``, mono stacks) or ``min(e, r p)``
+    (``"both"``, mono stacks with ``evidence=True``).  Without colour a rise does not tell a pale
+    matte surface from a highlight (every surface is of ``G``'s colour), so a mono stack's removal
+    needs polarized light at the pixel.
     """
+    if evidence not in BOUND_EVIDENCE:
+        raise ValueError(f"evidence={evidence!r}: expected one of {', '.join(BOUND_EVIDENCE)}")
     xp = namespace(diffuse)
     smax = xp.maximum(min3(diffuse / gx), 0.0)
-    evidence = peak_excess(ic, gx, window=_k(EVIDENCE_WINDOW * TRAIN_SIDE, side), smooth=EVIDENCE_MEDIAN)
-    if polarized is not None:
-        evidence = xp.maximum(evidence, POLARIZED_RATIO * polarized)
-    return xp.astype(xp.minimum(smax, evidence), xp.float32)
+    seen = POLARIZED_RATIO * polarized
+    if evidence == "polarized":
+        return xp.astype(xp.minimum(smax, seen), xp.float32)
+    rise = peak_excess(ic, gx, window=_k(EVIDENCE_WINDOW * TRAIN_SIDE, side), smooth=EVIDENCE_MEDIAN)
+    bound = {"either": xp.maximum(rise, seen), "rise": rise, "both": xp.minimum(rise, seen)}[evidence]
+    return xp.astype(xp.minimum(smax, bound), xp.float32)
 
 
 def features(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
@@ -330,20 +352,25 @@ def _load(path: str) -> dict[str, np.ndarray]:
     return w
 
 
-def load_weights(path: str | Path | None = None) -> dict[str, np.ndarray]:
-    """The model's arrays (``layers``, ``mu``, ``sd``, ``w0``, ``b0``, ...; the shipped file by default)."""
-    return _load(str(WEIGHTS_FILE if path is None else Path(path)))
+def load_weights(path: str | Path | None = None, *, mono: bool = False) -> dict[str, np.ndarray]:
+    """The model's arrays (``layers``, ``mu``, ``sd``, ``w0``, ``b0``, ...): of ``path``, or the
+    shipped file (:data:`WEIGHTS_FILE`, or with ``mono`` :data:`MONO_WEIGHTS_FILE`)."""
+    if path is None:
+        path = MONO_WEIGHTS_FILE if mono else WEIGHTS_FILE
+    return _load(str(Path(path)))
 
 
 def stage_inputs(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
                  axis: tuple[Any, Any, Any], measured: Any, blind: Any, *,
-                 rise_only: bool = False) -> dict[str, Any]:
+                 rise_only: bool = False, colour_seen: bool = True) -> dict[str, Any]:
     """What the stage reads: ``bound`` (:func:`removal_bound`), ``zone`` (:func:`zone`) and ``x``
     (:func:`features` of the zone's pixels).  Arguments as :func:`features` and :func:`zone`;
-    ``rise_only`` leaves the polarized light out of the bound (the rise above the surroundings
-    alone)."""
+    ``rise_only`` bounds the removal by the rise above the surroundings (alone on a colour stack,
+    with the polarized light on a mono one); ``colour_seen=False`` (a mono stack as a grey one) asks
+    for polarized light at the pixel (:func:`removal_bound`'s ``"polarized"``)."""
     side = int(v["side"])
-    bound = removal_bound(diffuse, v["ic"], gx, side, None if rise_only else a_eff * gate)
+    evidence = ("rise" if rise_only else "either") if colour_seen else ("both" if rise_only else "polarized")
+    bound = removal_bound(diffuse, v["ic"], gx, side, a_eff * gate, evidence=evidence)
     where = zone(gate, blind, side, bound)
     x = features(diffuse, v, gx, gate, a_eff, share, axis, measured, bound, where)
     return {"x": x, "bound": bound, "zone": where}

@@ -56,6 +56,7 @@ from polcam.separation._false_polarization import without_edge_polarization
 from polcam.separation._highlight import EVIDENCE_MEDIAN, peak_excess
 from polcam.separation._illuminant import SATURATED, check_efficiency, estimate_illuminant
 from polcam.separation._learned_residual import FEATURES as LEARNED_FEATURES
+from polcam.separation._learned_residual import MONO_WEIGHTS_FILE as LEARNED_MONO_WEIGHTS
 from polcam.separation._learned_residual import WEIGHTS_FILE as LEARNED_WEIGHTS
 from polcam.separation._learned_residual import apply as _learned_apply
 from polcam.separation._learned_residual import load_weights as _learned_weights
@@ -68,7 +69,7 @@ from polcam.separation._residual import highlight_mask, mono_steps, residual_ste
 from polcam.separation.tensor.torch_backend import check_device
 
 __all__ = ["REFERENCE", "separate_polarized_residual", "stages", "learned_inputs", "learned_layer", "DEFAULTS",
-           "LEARNED_FEATURES", "LEARNED_WEIGHTS"]
+           "LEARNED_FEATURES", "LEARNED_WEIGHTS", "LEARNED_MONO_WEIGHTS"]
 
 REFERENCE = (
     "polcam's own method; builds on L. B. Wolff & T. E. Boult, IEEE TPAMI 13(7) 1991 (polarization "
@@ -226,12 +227,13 @@ def stages(stack: np.ndarray, **options: Any) -> dict[str, np.ndarray]:
 
 
 def learned_inputs(stack: np.ndarray, **options: Any) -> dict[str, Any]:
-    """The learned stage's inputs on a colour stack, as polarized-residual computes them (its training reads them).
+    """The learned stage's inputs on a stack, as polarized-residual computes them (its training reads them).
 
     Parameters
     ----------
     stack
-        (4, H, W, 3) float in [0, 1], angles 0, 45, 90, 135.
+        (4, H, W, 3) float in [0, 1], angles 0, 45, 90, 135; or (4, H, W) mono, taken as the grey
+        colour stack polarized-residual runs on it (:func:`separate_polarized_residual`).
     **options
         As :func:`separate_polarized_residual`, except ``unpolarized`` (the layer is taken before
         the stage, as with ``unpolarized="none"``).
@@ -239,15 +241,13 @@ def learned_inputs(stack: np.ndarray, **options: Any) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``diffuse`` (H, W, 3) the layer before the stage; ``zone`` (H, W) bool, where it acts;
+        ``diffuse`` (H, W, 3) the layer before the stage (three equal channels for a mono stack,
+        whose layer is their mean); ``zone`` (H, W) bool, where it acts;
         ``x`` (N, F) float32 the features of the zone's pixels (row-major);
         ``bound`` (H, W) float32 >= 0 the most it may remove, in units of ``G``; ``g`` (3,) ``G``.
     """
     inputs: dict[str, Any] = {}
     _separate(stack, {**options, "unpolarized": "none"}, None, inputs)
-    if not inputs:
-        raise MethodError(f"polarized-residual: stack of shape {np.shape(stack)}: the learned stage takes "
-                          "colour stacks (4, H, W, 3)")
     return inputs
 
 
@@ -255,7 +255,8 @@ def learned_layer(inputs: dict[str, Any], weights: dict[str, np.ndarray]) -> Any
     """The layer the learned stage makes from :func:`learned_inputs` with ``weights`` (its training tries them).
 
     ``weights`` as :func:`polcam.separation._learned_residual.load_weights` gives them (the shipped
-    ones make polarized-residual's default layer).  Returns (H, W, 3) float32 >= 0.
+    ones, ``mono=True`` for the inputs of a mono stack, make polarized-residual's default layer).
+    Returns (H, W, 3) float32 >= 0 (a mono stack's layer is its channels' mean).
     """
     w = {k: (np.asarray(v, np.float32) if np.asarray(v).dtype.kind == "f" else v) for k, v in weights.items()}
     out, _ = _learned_apply(inputs["diffuse"], inputs["x"], inputs["bound"], inputs["zone"], inputs["g"], w)
@@ -277,7 +278,7 @@ def _separate(stack: Any, options: dict[str, Any], keep: dict[str, Any] | None,
     _check(opts)
     s, host = _on_device(stack, opts["device"])
     if s.ndim == 3 and s.shape[0] == 4:
-        diffuse, info = _mono(s, opts, keep)
+        diffuse, info = _mono(s, opts, keep, inputs)
     elif s.ndim != 4 or s.shape[0] != 4 or s.shape[-1] != 3:
         raise MethodError(f"polarized-residual: stack of shape {tuple(s.shape)}: expected (4, H, W, 3) or (4, H, W)")
     else:
@@ -365,28 +366,31 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
     if opts["unpolarized"] == "learned" or (inputs is not None and opts["unpolarized"] == "none"):
         diffuse, info["learned_specular"] = _learned_stage(diffuse, v, gx, gate, a_eff, share, axis, measured, blind,
                                                            run=opts["unpolarized"] == "learned", inputs=inputs,
-                                                           rise_only=bool(opts["evidence"]))
+                                                           rise_only=bool(opts["evidence"]), colour_seen=colour_seen)
     return xp.astype(diffuse, xp.float32), info
 
 
 def _learned_stage(diffuse: Any, v: dict[str, Any], gx: Any, gate: Any, a_eff: Any, share: float,
                    axis: tuple[Any, Any, Any], measured: Any, blind: Any, *, run: bool,
-                   inputs: dict[str, Any] | None, rise_only: bool) -> tuple[Any, float]:
+                   inputs: dict[str, Any] | None, rise_only: bool, colour_seen: bool) -> tuple[Any, float]:
     """Step 7 (``unpolarized="learned"``): the unpolarized specular light a small model reads, removed along ``G``.
 
     :mod:`polcam.separation._learned_residual`: near coherent polarized light, off pixels whose every
     channel is ``blind``, and at most the pixel's rise above its surroundings or its polarized light
     (:data:`polcam.separation._learned_residual.POLARIZED_RATIO` times it; the rise alone with
-    ``rise_only``, as ``evidence=True`` asks).  Returns the layer (unchanged unless
-    ``run``) and the light removed as a share of the layer's light; ``inputs`` (a dict or None)
-    receives the model's inputs.
+    ``rise_only``, as ``evidence=True`` asks).  Without colour (``colour_seen=False``, a mono stack)
+    at most its polarized light (and the rise too with ``rise_only``), with the mono weights.
+    Returns the layer (unchanged unless ``run``) and the light removed as a share of the layer's
+    light; ``inputs`` (a dict or None) receives the model's inputs.
     """
-    read = _learned_inputs(diffuse, v, gx, gate, a_eff, share, axis, measured, blind, rise_only=rise_only)
+    read = _learned_inputs(diffuse, v, gx, gate, a_eff, share, axis, measured, blind, rise_only=rise_only,
+                           colour_seen=colour_seen)
     if inputs is not None:
         inputs.update(read, diffuse=diffuse, g=gx)
     if not run:
         return diffuse, 0.0
-    out, _ = _learned_apply(diffuse, read["x"], read["bound"], read["zone"], gx, _learned_weights())
+    weights = _learned_weights(mono=not colour_seen)
+    out, _ = _learned_apply(diffuse, read["x"], read["bound"], read["zone"], gx, weights)
     return out, float((diffuse - out).sum()) / max(float(diffuse.sum()), _LIGHT_GUARD)
 
 
@@ -531,7 +535,8 @@ def _within_measured(diffuse: Any, measured: Any, gx: Any) -> Any:
     return xp.clip(diffuse - xp.maximum(over, 0.0)[..., None] * gx, 0.0, measured)
 
 
-def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None,
+          inputs: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
     """Mono stacks ((4, H, W) float32, numpy or torch): the colour path on the stack as a grey one.
 
     A mono sensor is a colour sensor whose three channels see the same light: the stack is taken
@@ -549,7 +554,7 @@ def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None) 
     grey = xp.stack([stack, stack, stack], axis=-1)
     layers: dict[str, Any] | None = None if keep is None else {}
     diffuse, info = _colour(grey, {**opts, "illuminant": (1.0, 1.0, 1.0), "efficiency": None}, layers,
-                            colour_seen=False)
+                            inputs, colour_seen=False)
     if layers is not None:
         keep.update({k: xp.astype(v.mean(axis=-1), xp.float32) for k, v in layers.items()})
     for k in ("illuminant", "illuminant_source", "efficiency", "polarized_colour"):

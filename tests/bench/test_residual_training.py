@@ -139,3 +139,59 @@ def test_training_samples_add_the_matte_scenes() -> None:
     assert (both["target"][tail] >= 0).all() and both["target"][tail].sum() < 0.5 * both["bound"][tail].sum()
     assert len(rt.training_samples(1, size=64, max_samples=10**6, matte=2, matte_samples=50)["target"]) < \
         len(family["target"]) + 120
+
+
+
+def test_mono_samples_read_what_the_mono_separation_runs() -> None:
+    """A mono stack's inputs are those of polarized-residual's own mono run: the layer the stage makes
+    from them with the shipped mono weights is the default mono layer, in each of three equal channels."""
+    from polcam.separation.polarized_residual import learned_inputs, learned_layer, separate_polarized_residual
+    from polcam.synth.family import render_family
+
+    sc = render_family(training_seeds(1)[0], size=64)
+    inputs = learned_inputs(sc.mono_stack)
+    assert inputs["diffuse"].shape == (64, 64, 3) and inputs["zone"].any()
+    layer = learned_layer(inputs, lr.load_weights(mono=True))
+    assert np.array_equal(layer[..., 0], layer[..., 1]) and np.array_equal(layer[..., 0], layer[..., 2])
+    mono, _ = separate_polarized_residual(sc.mono_stack)
+    np.testing.assert_allclose(layer.mean(axis=-1), mono, atol=1e-6)
+    assert not np.allclose(np.asarray(learned_layer(inputs, lr.load_weights())).mean(axis=-1), mono, atol=1e-4)
+    # its samples are scored against the mono truth: the targets are what the layer holds above it
+    s = scene_samples(training_seeds(1)[0], size=64, camera="mono")
+    d = np.asarray(inputs["diffuse"], np.float64)[..., 0][inputs["zone"]]
+    t = np.asarray(sc.diffuse_mono, np.float64)[inputs["zone"]]
+    np.testing.assert_allclose(s["target"], np.clip(d - t, 0.0, s["bound"]), atol=1e-6)   # G = (1, 1, 1)
+    assert np.array_equal(s["x"], inputs["x"])
+
+
+def test_mono_matte_scenes_are_the_colour_ones_luminance() -> None:
+    stack, truth, mask = rt.matte_scene(3, size=64, camera="mono")
+    _, colour_truth, _ = rt.matte_scene(3, size=64)
+    assert stack.shape == (4, 64, 64) and truth.shape == (64, 64) and mask.all()
+    np.testing.assert_allclose(truth, colour_truth.mean(axis=-1))
+    assert abs(stack.mean() / truth.mean() - 1.0) < 0.005                     # unpolarized, nothing added
+    chart, patches = rt.colour_chart(camera="mono")
+    assert chart.ndim == 3 and patches.shape[0] == 24                          # to a mono camera every patch is grey
+    with pytest.raises(ValueError, match="camera='infrared'"):
+        rt.matte_scene(0, camera="infrared")
+
+
+def test_without_colour_the_bound_alone_keeps_the_matte_scenes() -> None:
+    """In a mono stack the stage removes at most the polarized light it sees at the pixel: even a model
+    that removes all of that keeps every matte scene of the checks above its floors, where on a colour
+    stack it does not (test above); the shipped mono weights pass them too."""
+    greedy = rt.harm_checks(_removes_its_whole_bound(), camera="mono")
+    assert rt.failed_checks(greedy) == [] and greedy["checker16_kept"] < 1.0
+    assert rt.failed_checks(rt.harm_checks(lr.load_weights(mono=True), camera="mono")) == []
+
+
+def test_command_trains_for_the_camera_asked(tmp_path, capsys) -> None:
+    out = tmp_path / "m.npz"
+    assert main(["bench", "train-residual", "--camera", "mono", "--scenes", "1", "--size", "64", "--samples", "2000",
+                 "--iterations", "3", "--matte-scenes", "1", "--out", str(out)]) == 0
+    with np.load(out) as z:
+        info = json.loads(str(z["info"]))
+    assert info["camera"] == "mono" and info["command"].startswith("polcam bench train-residual --camera mono")
+    with pytest.raises(SystemExit):
+        main(["bench", "train-residual", "--camera", "infrared"])
+    assert "invalid choice: 'infrared'" in capsys.readouterr().err

@@ -21,8 +21,9 @@ takes its DoLP and AoLP from the fused kernel of :mod:`polcam.polarimetry` (AoLP
 instead of OpenCV's approximation, which was up to 1e-4 rad off; DoLP 0 where S0 is 0, where
 OpenCV's 0/0 had given 1).  The ``sep/tensor*`` arrays were rewritten when the tensor method's
 Imin bound became an option, off by default (the old arrays are those of ``imin_bound=True``,
-checked equal), and the ``sep/polarized-residual/*`` arrays when that method was rebuilt
-(docs/methods/polarized-residual.md).  Entries are rewritten one family at a time: every other entry must still
+checked equal), the ``sep/polarized-residual/*`` arrays when that method was rebuilt
+(docs/methods/polarized-residual.md), and its ``mono`` arrays when mono stacks got their own
+learned-stage weights and bound (docs/decisions/mono-learned-stage.md).  Entries are rewritten one family at a time: every other entry must still
 match the file.
 
 Outputs: ``sep/<method>/<form>/{diffuse,specular}`` for every separation

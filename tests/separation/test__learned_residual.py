@@ -116,15 +116,16 @@ def test_the_bound_is_the_rise_or_the_polarized_light_and_never_more_than_the_la
     g = np.array([1.1, 1.0, 0.9], np.float32)
     h, w = 64, 64
     diffuse = np.broadcast_to(0.3 * g, (h, w, 3)).astype(np.float32).copy()
+    unpolarized = np.zeros((h, w), np.float32)
     # a 7 x 7 peak: wider than the 5 x 5 median, inside the window (0.12 of the side)
     peak = diffuse.copy()
     peak[28:35, 28:35] += 0.25 * g
-    b = np.asarray(lr.removal_bound(peak, peak, g, w))
+    b = np.asarray(lr.removal_bound(peak, peak, g, w, unpolarized))
     assert b[31, 31] == pytest.approx(0.25, rel=1e-4) and b[10, 10] == 0.0
     thin = diffuse * 0.1                                    # a layer that holds less than the rise
-    assert np.asarray(lr.removal_bound(thin, peak, g, w))[31, 31] == pytest.approx(0.03, rel=1e-4)
+    assert np.asarray(lr.removal_bound(thin, peak, g, w, unpolarized))[31, 31] == pytest.approx(0.03, rel=1e-4)
     flat = diffuse + 0.2 * g                                # a flat "highlight" over the whole image
-    np.testing.assert_allclose(np.asarray(lr.removal_bound(diffuse, flat, g, w)), 0.0, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(lr.removal_bound(diffuse, flat, g, w, unpolarized)), 0.0, atol=1e-6)
     # where its polarization is seen, the polarized light bounds it: POLARIZED_RATIO times it
     polarized = np.zeros((h, w), np.float32)
     polarized[:, 32:] = 0.1
@@ -132,3 +133,27 @@ def test_the_bound_is_the_rise_or_the_polarized_light_and_never_more_than_the_la
     np.testing.assert_allclose(b[:, :32], 0.0, atol=1e-6)
     np.testing.assert_allclose(b[:, 32:], lr.POLARIZED_RATIO * 0.1, rtol=1e-5)
     assert np.asarray(lr.removal_bound(thin, flat, g, w, polarized))[5, 40] == pytest.approx(0.03, rel=1e-4)
+    # the rise alone (evidence=True on a colour stack) does not count the polarized light
+    b = np.asarray(lr.removal_bound(peak, peak, g, w, polarized, evidence="rise"))
+    assert b[31, 31] == pytest.approx(0.25, rel=1e-4) and b[10, 40] == 0.0
+
+
+def test_without_colour_a_rise_without_polarized_light_is_not_removed() -> None:
+    """Mono stacks (``"polarized"``): the peak of the test above, a pale matte patch as much as a
+    highlight, keeps its light where no polarized light is seen, and loses at most ``r p`` where it is;
+    ``"both"`` (mono with evidence=True) bounds by the lesser of the rise and ``r p``."""
+    g = np.ones(3, np.float32)
+    h, w = 64, 64
+    peak = np.full((h, w, 3), 0.3, np.float32)
+    peak[28:35, 28:35] += 0.25
+    np.testing.assert_allclose(np.asarray(lr.removal_bound(peak, peak, g, w, np.zeros((h, w), np.float32),
+                                                           evidence="polarized")), 0.0, atol=1e-7)
+    polarized = np.zeros((h, w), np.float32)
+    polarized[:, 31:] = 0.4                                 # more than the peak's rise of 0.25
+    b = np.asarray(lr.removal_bound(peak, peak, g, w, polarized, evidence="polarized"))
+    assert b[31, 31] == pytest.approx(0.4 * lr.POLARIZED_RATIO, rel=1e-5) and b[31, 29] == 0.0
+    assert b[10, 40] == pytest.approx(min(0.3, 0.4 * lr.POLARIZED_RATIO), rel=1e-5)  # flat surround: at most D
+    both = np.asarray(lr.removal_bound(peak, peak, g, w, polarized, evidence="both"))
+    assert both[31, 31] == pytest.approx(min(0.25, 0.4 * lr.POLARIZED_RATIO), rel=1e-4) and both[10, 40] == 0.0
+    with pytest.raises(ValueError, match="evidence='loud'"):
+        lr.removal_bound(peak, peak, g, w, polarized, evidence="loud")

@@ -17,6 +17,7 @@ from polcam.commands._args import reproducing_command
 from polcam.commands.bench import speed
 from polcam.errors import FrameReadError, MethodError, PolcamError
 from polcam.io.atomic import atomic_write
+from polcam.separation.polarized_residual import LEARNED_MONO_WEIGHTS as RESIDUAL_MONO_WEIGHTS
 from polcam.separation.polarized_residual import LEARNED_WEIGHTS as RESIDUAL_WEIGHTS
 from polcam.synth.family import scene_name, split_seeds
 
@@ -296,8 +297,12 @@ def _add_train_residual(bsub: Any) -> None:
                          f"(default {rt.DEFAULT_MATTE_SCENES})")
     ap.add_argument("--matte-samples", type=int, default=rt.DEFAULT_MATTE_SAMPLES,
                     help=f"pixels of the matte scenes fitted (default {rt.DEFAULT_MATTE_SAMPLES})")
+    ap.add_argument("--camera", choices=rt.CAMERAS, default="colour",
+                    help="the camera the weights are for: the family's colour camera, or its mono camera, whose "
+                         "stacks polarized-residual runs with weights of their own (default colour)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the subset and the initial weights (default 0)")
-    ap.add_argument("--out", type=Path, default=RESIDUAL_WEIGHTS, help="output .npz (default: the shipped weights)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="output .npz (default: the shipped weights of --camera)")
     ap.set_defaults(bench_run=_run_train_residual, bench_parser=ap)
 
 
@@ -309,20 +314,24 @@ def _run_train_residual(args: argparse.Namespace) -> int:
             args.bench_parser.error(f"--{name} {getattr(args, name)}: expected an integer of at least {least}")
     if args.start < 0 or args.l2 < 0 or args.matte_scenes < 0 or args.matte_samples < 0:
         args.bench_parser.error("--start, --l2, --matte-scenes and --matte-samples: expected non-negative numbers")
+    shipped = RESIDUAL_MONO_WEIGHTS if args.camera == "mono" else RESIDUAL_WEIGHTS
+    if args.out is None:
+        args.out = shipped
     t0 = time.perf_counter()
     weights = rt.train(args.scenes, size=args.size, start=args.start, max_samples=args.samples,
                        iterations=args.iterations, l2=args.l2, seed=args.seed, matte=args.matte_scenes,
-                       matte_samples=args.matte_samples)
+                       matte_samples=args.matte_samples, camera=args.camera)
     command = reproducing_command("polcam bench train-residual", args,
-                                  ("scenes", "size", "start", "samples", "iterations", "l2", "matte_scenes",
+                                  ("camera", "scenes", "size", "start", "samples", "iterations", "l2", "matte_scenes",
                                    "matte_samples", "seed"))
-    checks = rt.harm_checks(weights)
-    info = {"command": command, "hidden": list(rt.DEFAULT_HIDDEN), "harm_checks": checks,
-            "data": "the randomized scene family's training seeds (polcam.synth.family.training_seeds), albedo "
-                    "from public-domain / CC0 photographs of scikit-image; no other data"}
+    checks = rt.harm_checks(weights, camera=args.camera)
+    info = {"command": command, "camera": args.camera, "hidden": list(rt.DEFAULT_HIDDEN), "harm_checks": checks,
+            "data": f"the {args.camera} camera's stacks of the randomized scene family's training seeds "
+                    "(polcam.synth.family.training_seeds), albedo from public-domain / CC0 photographs of "
+                    "scikit-image; no other data"}
     failed = rt.failed_checks(checks)
     took = f"{time.perf_counter() - t0:.0f} s (loss {float(weights['loss']):.4g})"
-    if failed and Path(args.out).resolve() == Path(RESIDUAL_WEIGHTS).resolve():
+    if failed and Path(args.out).resolve() == Path(shipped).resolve():
         # the shipped weights are what every separation uses: weights that thin a matte surface do not replace them
         rejected = Path(args.out).with_name(Path(args.out).stem + ".rejected.npz")
         rt.save_weights(weights, rejected, info=info)
