@@ -88,6 +88,23 @@ def test_matte_colour_chart_in_a_camera_frame_keeps_its_greys():
     assert harm_checks(load_weights())["chart_frame_worst_grey"] == pytest.approx(min(kept), abs=1e-5)
 
 
+def test_matte_chart_through_a_mono_camera_keeps_every_patch():
+    # to a mono camera every patch of the framed chart is a grey, and a pale one between black gaps
+    # rises above its surroundings as a highlight does: the mono stage removes light only where
+    # polarized light is seen, so none of the 24 patches is thinned (with the colour weights and the
+    # rise bound a mid grey kept 0.954)
+    from polcam.bench.residual_training import colour_chart, harm_checks
+    from polcam.separation._learned_residual import load_weights
+
+    cam, patches = colour_chart(30, 8, frame=(1024, 1224), camera="mono")
+    res = _separate(cam)
+    ic = cam.mean(axis=0)
+    kept = [res.diffuse[g].sum() / ic[g].sum() for g in patches]
+    assert len(kept) == 24 and min(kept) >= 0.98, kept
+    assert harm_checks(load_weights(mono=True), camera="mono")["chart_frame_worst_grey"] == \
+        pytest.approx(min(kept), abs=1e-5)
+
+
 def _matte_sphere(albedo):
     """A matte sphere with Fresnel-polarized diffuse light (n = 1.6) and no specular: the render,
     its mask eroded by 2 pixels, and its rim (diffuse DoLP > 0.08) within that."""
