@@ -32,7 +32,9 @@ validation sweeps behind every choice):
   (:func:`polcam.separation._clipping.fill_clipped_highlights`).
 * A mono stack is a colour stack of three equal channels under a white illuminant: the
   same steps run on it, except that clipped regions are left as measured (a grey border
-  cannot show which material lies under them).
+  cannot show which material lies under them) and the learned stage removes light only where
+  polarized light is seen at the pixel, with weights of its own (without colour a rise does not
+  tell a pale matte surface from a highlight).
 
 One implementation for numpy and PyTorch: the array code runs over :mod:`polcam._xp`, the
 neighbourhood filters are :mod:`polcam._imageops` (OpenCV for numpy, the same kernels on a torch
@@ -179,7 +181,8 @@ def separate_polarized_residual(stack: np.ndarray, **options: Any) -> tuple[np.n
         ``diffuse_polarization``, ``context``, ``hue_bins``, ``min_saturation``, ``max_ratio``,
         ``residual_model``), ``polarized_threshold``.  A mono stack runs the colour path on the
         stack as a grey one (``illuminant`` and ``efficiency`` ignored; clipped regions left as
-        measured; docs/methods/polarized-residual.md, "Mono stacks").
+        measured; the learned stage bounded by the polarized light seen, with the mono weights;
+        docs/methods/polarized-residual.md, "Mono stacks").
 
     Returns
     -------
@@ -315,7 +318,8 @@ def _colour(s: Any, opts: dict[str, Any], keep: dict[str, Any] | None,
     Steps 0-7 of docs/methods/polarized-residual.md ("Colour stacks, as implemented"), one function
     each; with ``unpolarized="measured"`` :func:`polcam.separation._residual.residual_steps` takes the
     place of steps 2 and 4.  ``colour_seen=False`` (a mono stack as a grey one): the clipped
-    regions' fill, which needs the border's colour to tell one material, leaves them as measured.
+    regions' fill, which needs the border's colour to tell one material, leaves them as measured,
+    and the learned stage (step 7) is bounded by the polarized light alone, with the mono weights.
     """
     xp = namespace(s)
     measured = s.mean(axis=0)
@@ -541,9 +545,11 @@ def _mono(stack: Any, opts: dict[str, Any], keep: dict[str, Any] | None = None,
 
     A mono sensor is a colour sensor whose three channels see the same light: the stack is taken
     as (4, H, W, 3) with equal channels and the illuminant ``G = (1, 1, 1)`` (exact: every colour
-    is the illuminant's), so steps 0-7 run unchanged and their colour tests pass on every pixel,
+    is the illuminant's), so steps 0-6 run unchanged and their colour tests pass on every pixel,
     except the clipped regions' fill: without colour the border cannot show that one material lies
-    under the clipping, so they are left as measured (counted in ``info``).  The layer is the
+    under the clipping, so they are left as measured (counted in ``info``).  Step 7, the learned
+    stage, removes at most the polarized light seen at the pixel and reads the mono weights
+    (:func:`polcam.separation._learned_residual.removal_bound`).  The layer is the
     channels' mean.  ``illuminant`` and ``efficiency`` do not apply and are ignored, and ``info``
     carries no illuminant.  With ``unpolarized="measured"``,
     :func:`polcam.separation._residual.mono_steps`.
