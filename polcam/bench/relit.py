@@ -16,6 +16,15 @@ under :data:`VARIANTS` and measures, per stack, variant and method:
     method may rightly remove unpolarized sheen from a glossy white surface.
 ``top_removed``, ``spread``
     As in :mod:`polcam.bench.real` (brightest 1 % removed, specular colour spread).
+``top_clipped``, ``top_unpolarized``, ``top_rising``, ``top_rising_polarized``
+    What the brightest 1 % (the pixels ``top_removed`` is taken over) holds, the same for every
+    method of a stack and variant (:func:`brightest_composition`): the shares of those pixels with
+    a clipped sample, nearly unpolarized (true grey DoLP under 0.03), brighter than their
+    neighbourhood (as ``matte_kept`` leaves out), and both that and unclipped and polarized, where
+    a highlight shows the signs a separation can read.  Where the brightest 1 % is a matte white
+    surface or clipped, removing it is harm, not separation.
+``top_removed_rising_polarized``
+    ``top_removed`` over the last of those alone (NaN where there are none).
 ``invented``
     Structure invented in clipped regions.  Where every polarizer sample of a
     colour channel is clipped, the camera says only "at least white": the
@@ -44,7 +53,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -53,10 +62,11 @@ import numpy as np
 from polcam.bench.real import achromatic_mask, camera_stack, find_scenes, load_stack, metrics, prepare, relight
 from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import PolcamError
+from polcam.polarimetry import dolp
 from polcam.separation import METHODS, method_spec, separate
 
-__all__ = ["VARIANTS", "CLIP_LEVEL", "MIN_REGION", "RelitScore", "matte_mask", "invented_structure", "run", "format_table",
-           "summary"]
+__all__ = ["VARIANTS", "CLIP_LEVEL", "MIN_REGION", "UNPOLARIZED_DOLP", "RelitScore", "matte_mask", "brightest_composition",
+           "invented_structure", "run", "format_table", "summary"]
 
 #: The relit variants: name -> (exposure, light RGB).  ``overexposed``: 1.5 times the light, what
 #: was above 2/3 of the white level clips; ``tinted``: the light a raw IMX250MYR frame sees
@@ -74,6 +84,8 @@ MIN_REGION = 25
 #: Local highlights: grey mean over (1 + LOCAL_BRIGHT) times its median in a LOCAL_WINDOW window.
 LOCAL_BRIGHT = 0.15
 LOCAL_WINDOW = 41
+#: A pixel is nearly unpolarized below this true grey DoLP (as :func:`polcam.bench.real.achromatic_mask`).
+UNPOLARIZED_DOLP = 0.03
 
 
 @dataclass
@@ -90,6 +102,11 @@ class RelitScore:
     clipped_share: float
     seconds: float
     error: str | None = None
+    top_clipped: float = float("nan")
+    top_unpolarized: float = float("nan")
+    top_rising: float = float("nan")
+    top_rising_polarized: float = float("nan")
+    top_removed_rising_polarized: float = float("nan")
 
 
 def matte_mask(achromatic: np.ndarray, relit_true: np.ndarray, *, clip_level: float = CLIP_LEVEL,
@@ -110,18 +127,86 @@ def matte_mask(achromatic: np.ndarray, relit_true: np.ndarray, *, clip_level: fl
         A pixel whose grey mean exceeds ``(1 + bright)`` times the median of a ``window`` x
         ``window`` neighbourhood is a local highlight.
     """
-    import cv2
     from scipy import ndimage
 
     s = np.asarray(relit_true, np.float64)
     clipped = (s >= clip_level).any(axis=(0, 3))
     if grow > 0:
         clipped = ndimage.binary_dilation(clipped, structure=np.ones((2 * grow + 1, 2 * grow + 1), bool))
-    grey = s.mean(axis=(0, 3)).astype(np.float32)
-    # the median filter on 8-bit (OpenCV takes windows over 5 only for 8-bit images): 1/255 steps
-    med = cv2.medianBlur(np.clip(grey * 255 + 0.5, 0, 255).astype(np.uint8), int(window)).astype(np.float64) / 255
-    local = grey > (1.0 + bright) * np.maximum(med, 1.0 / 255)
+    local = _locally_bright(s.mean(axis=(0, 3)), bright, window)
     return np.asarray(achromatic, bool) & ~clipped & ~local
+
+
+def _locally_bright(grey: np.ndarray, bright: float, window: int) -> np.ndarray:
+    """(H, W) bool: ``grey`` over ``(1 + bright)`` times its median in a ``window`` x ``window`` neighbourhood."""
+    import cv2
+
+    g = np.asarray(grey, np.float32)
+    # the median filter on 8-bit (OpenCV takes windows over 5 only for 8-bit images): 1/255 steps
+    med = cv2.medianBlur(np.clip(g * 255 + 0.5, 0, 255).astype(np.uint8), int(window)).astype(np.float64) / 255
+    return g > (1.0 + bright) * np.maximum(med, 1.0 / 255)
+
+
+def brightest_composition(given: np.ndarray, relit_true: np.ndarray, *, clip_level: float = CLIP_LEVEL,
+                          bright: float = LOCAL_BRIGHT, window: int = LOCAL_WINDOW,
+                          unpolarized: float = UNPOLARIZED_DOLP) -> dict[str, float]:
+    """What the brightest 1 % of pixels holds: the pixels ``top_removed`` is taken over.
+
+    ``top_removed`` rewards removing the light of the brightest pixels; that is separation where
+    they are highlights and harm where they are a matte white surface.  This says which.
+
+    Parameters
+    ----------
+    given
+        (4, H, W, 3) the stack the methods separate (the brightest 1 % by its mean intensity, as
+        :func:`polcam.bench.real.metrics` takes it).
+    relit_true
+        (4, H, W, 3) the true stack under the variant, in [0, 1] (what the pixels are).
+    clip_level
+        A true sample at or above it is clipped.
+    bright, window
+        As :func:`matte_mask`: a pixel brighter than ``(1 + bright)`` times its ``window``-pixel
+        median rises above its neighbourhood.
+    unpolarized
+        A pixel whose true grey DoLP is under it is nearly unpolarized.
+
+    Returns
+    -------
+    dict
+        Shares of the brightest 1 % in [0, 1]: ``top_clipped`` (a true sample clipped),
+        ``top_unpolarized``, ``top_rising`` (brighter than its neighbourhood) and
+        ``top_rising_polarized`` (rising, unclipped and polarized: a highlight's signs).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> wall = np.full((4, 64, 64, 3), 0.4); wall[:, :8, :8] = 1.0      # a clipped matte white corner
+    >>> brightest_composition(wall, wall)["top_clipped"]
+    1.0
+    """
+    top, clipped, unpol, rising = _brightest_masks(given, relit_true, clip_level=clip_level, bright=bright,
+                                                   window=window, unpolarized=unpolarized)
+    n = max(int(top.sum()), 1)
+
+    def share(m: np.ndarray) -> float:
+        return float((m & top).sum() / n)
+
+    return {"top_clipped": share(clipped), "top_unpolarized": share(unpol), "top_rising": share(rising),
+            "top_rising_polarized": share(rising & ~clipped & ~unpol)}
+
+
+def _brightest_masks(given: np.ndarray, relit_true: np.ndarray, *, clip_level: float = CLIP_LEVEL,
+                     bright: float = LOCAL_BRIGHT, window: int = LOCAL_WINDOW,
+                     unpolarized: float = UNPOLARIZED_DOLP) -> tuple[np.ndarray, ...]:
+    """(H, W) bool masks of :func:`brightest_composition`: the brightest 1 %, clipped, unpolarized, rising."""
+    g = np.asarray(given, np.float64)
+    t = np.asarray(relit_true, np.float64)
+    lum = g.mean(axis=(0, 3))
+    top = lum >= np.quantile(lum, 0.99)
+    clipped = (t >= clip_level).any(axis=(0, 3))
+    unpol = dolp(t.mean(axis=-1)) < unpolarized
+    rising = _locally_bright(t.mean(axis=(0, 3)), bright, window)
+    return top, clipped, unpol, rising
 
 
 def _harmonic(values: np.ndarray, unknown: np.ndarray) -> np.ndarray:
@@ -249,8 +334,12 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
                 given = _mono_camera(true[..., 0])[..., None]
             else:
                 given = camera_stack(true)
+            top = brightest_composition(given, true)
+            b_top, b_clip, b_unpol, b_rise = _brightest_masks(given, true)
+            signs = b_top & b_rise & ~b_clip & ~b_unpol
             for m in meths:
-                out.append(_score(name, v, m, given, true, matte, mono=mono, options=options.get(m, {})))
+                out.append(replace(_score(name, v, m, given, true, matte, mono=mono, options=options.get(m, {}),
+                                          highlight_like=signs), **top))
                 if progress and out[-1].error is None:
                     s = out[-1]
                     print(f"  {name:<8} {v:<19} {m:<19} matte kept {s.matte_kept:.3f}  top1% {s.top_removed:.3f}  "
@@ -281,7 +370,7 @@ def _selection(data: Path, scenes: Sequence[str] | None, variants: Sequence[str]
 
 
 def _score(name: str, v: str, m: str, given: np.ndarray, true: np.ndarray, matte: np.ndarray, *, mono: bool,
-           options: dict[str, Any]) -> RelitScore:
+           options: dict[str, Any], highlight_like: np.ndarray | None = None) -> RelitScore:
     """One method on one relit stack; a failing method is reported in ``error``, not fatal to the table."""
     t0 = time.perf_counter()
     try:
@@ -294,7 +383,12 @@ def _score(name: str, v: str, m: str, given: np.ndarray, true: np.ndarray, matte
     spe = res.specular[..., None] if mono else res.specular
     mt = metrics(dif, spe, given, true, achromatic=matte)
     inv, share = invented_structure(dif, given)
-    return RelitScore(name, v, m, mt["achromatic_kept"], mt["top_removed"], mt["spread"], inv, share, sec)
+    signs = float("nan")
+    if highlight_like is not None and highlight_like.any():
+        inp = given.mean(axis=0)
+        signs = float(spe[highlight_like].sum() / max(inp[highlight_like].sum(), 1e-12))
+    return RelitScore(name, v, m, mt["achromatic_kept"], mt["top_removed"], mt["spread"], inv, share, sec,
+                      top_removed_rising_polarized=signs)
 
 
 def _mono_camera(true_grey: np.ndarray) -> np.ndarray:
@@ -304,16 +398,25 @@ def _mono_camera(true_grey: np.ndarray) -> np.ndarray:
 
 
 def format_table(scores: Sequence[RelitScore]) -> str:
-    """Markdown: one row per stack, variant and method."""
-    lines = ["| stack | variant | method | matte achromatic kept | brightest 1 % removed | specular spread | "
-             "invented in clipped regions | clipped pixels |", "|---|---|---|---:|---:|---:|---:|---:|"]
+    """Markdown: one row per stack, variant and method; then what each stack's brightest 1 % holds."""
+    lines = ["| stack | variant | method | matte achromatic kept | brightest 1 % removed | "
+             "of it rising, unclipped, polarized | specular spread | invented in clipped regions | clipped pixels |",
+             "|---|---|---|---:|---:|---:|---:|---:|---:|"]
     for s in scores:
         if s.error:
-            lines.append(f"| {s.scene} | {s.variant} | {s.method} | error: {s.error} | | | | |")
+            lines.append(f"| {s.scene} | {s.variant} | {s.method} | error: {s.error} | | | | | |")
             continue
         inv = "-" if not np.isfinite(s.invented) else f"{s.invented:.4f}"
-        lines.append(f"| {s.scene} | {s.variant} | {s.method} | {s.matte_kept:.3f} | {s.top_removed:.3f} | "
+        sig = "-" if not np.isfinite(s.top_removed_rising_polarized) else f"{s.top_removed_rising_polarized:.3f}"
+        lines.append(f"| {s.scene} | {s.variant} | {s.method} | {s.matte_kept:.3f} | {s.top_removed:.3f} | {sig} | "
                      f"{s.spread:.3f} | {inv} | {s.clipped_share:.1%} |")
+    seen = {(s.scene, s.variant): s for s in scores if np.isfinite(s.top_clipped)}
+    if seen:
+        lines += ["", "What the brightest 1 % holds (shares of its pixels; `brightest_composition`):", "",
+                  "| stack | variant | clipped | unpolarized | rising | rising, unclipped, polarized |",
+                  "|---|---|---:|---:|---:|---:|"]
+        lines += [f"| {s.scene} | {s.variant} | {s.top_clipped:.2f} | {s.top_unpolarized:.2f} | {s.top_rising:.2f} | "
+                  f"{s.top_rising_polarized:.2f} |" for s in seen.values()]
     return "\n".join(lines)
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from polcam.bench.relit import VARIANTS, invented_structure, matte_mask, run, summary
+from polcam.bench.relit import VARIANTS, brightest_composition, invented_structure, matte_mask, run, summary
 from polcam.cli import main
 
 
@@ -30,6 +30,34 @@ def test_matte_mask_leaves_out_clipped_and_locally_bright_pixels():
     assert not m[50:53, 50:53].any() and m[60:63, 20:23].all()
     assert m[30:45, 30:45].all()
     assert not matte_mask(np.zeros((80, 80), bool), stack).any()
+
+
+def _polarized_stack(ic: np.ndarray, p: np.ndarray, phi: float = 0.3) -> np.ndarray:
+    """(H, W) intensity and DoLP -> (4, H, W, 3) grey stack, I(t) = Ic (1 + p cos(2t - 2 phi)), clipped at 1."""
+    t = np.deg2rad([0, 45, 90, 135])[:, None, None]
+    return np.repeat(np.clip(ic * (1 + p * np.cos(2 * t - 2 * phi)), 0, 1)[..., None], 3, axis=-1)
+
+
+def test_brightest_composition_tells_a_clipped_matte_wall_from_a_polarized_highlight():
+    h = w = 96
+    ic = np.full((h, w), 0.35)
+    p = np.zeros((h, w))
+    wall = ic.copy()
+    wall[:, :12] = 1.2                                  # a matte white wall, clipped, 12.5 % of the frame
+    comp = brightest_composition(_polarized_stack(wall, p), _polarized_stack(wall, p))
+    assert comp["top_clipped"] == 1.0 and comp["top_unpolarized"] == 1.0
+    assert comp["top_rising"] == 0.0 and comp["top_rising_polarized"] == 0.0
+    yy, xx = np.mgrid[0:h, 0:w]
+    lobe = np.exp(-((yy - 48) ** 2 + (xx - 48) ** 2) / (2 * 4.0 ** 2))
+    glossy = ic + 0.5 * lobe                            # a highlight rising to 0.85, unclipped
+    pol = np.where(lobe > 0.05, 0.3 * lobe / (1 + 0.5 * lobe / 0.35), 0.0)   # its polarized part over the total
+    stack = _polarized_stack(glossy, pol)
+    comp = brightest_composition(stack, stack)
+    assert comp["top_clipped"] == 0.0 and comp["top_unpolarized"] == 0.0
+    assert comp["top_rising"] == 1.0 and comp["top_rising_polarized"] == 1.0
+    # the same rise with no polarization: rising, but not a highlight's signs
+    comp = brightest_composition(_polarized_stack(glossy, p), _polarized_stack(glossy, p))
+    assert comp["top_rising"] == 1.0 and comp["top_unpolarized"] == 1.0 and comp["top_rising_polarized"] == 0.0
 
 
 def test_invented_structure_is_zero_for_membranes_and_positive_for_facets():
@@ -74,7 +102,11 @@ def test_small_relit_run_and_the_cli(tmp_path, capsys):
                  "--scale", "0.25", "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "relit.json").read_text())
     assert len(doc["rows"]) == 4 and doc["summary"]["imin"]["matte_kept_min"] == pytest.approx(summ["matte_kept_min"])
-    assert "| jcpd-15 | tinted+overexposed | imin |" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "| jcpd-15 | tinted+overexposed | imin |" in out
+    # the shared stack's brightest 1 % is its clipped white base: every variant says so
+    assert all(s.top_clipped > 0.9 and s.top_rising_polarized < 0.05 for s in scores)
+    assert "What the brightest 1 % holds" in out and doc["rows"][0]["top_clipped"] == pytest.approx(scores[0].top_clipped)
     assert main(["bench", "real", "--relit", "--data", str(data), "--exposure", "2", "--out", str(tmp_path)]) == 2
 
 

@@ -155,7 +155,8 @@ def _add_real(bsub: Any) -> None:
                    help="the standing table: every stack under every relit variant (recorded, overexposed, "
                         "tinted, tinted+overexposed; polcam.bench.relit) with the no-harm measures: matte "
                         "achromatic kept, brightest 1 %% removed, specular spread, structure invented in "
-                        "clipped regions")
+                        "clipped regions; and what each stack's brightest 1 %% holds (clipped, unpolarized, "
+                        "rising above its neighbourhood)")
     p.add_argument("--variants", nargs="+", help="with --relit: only these variants (default: all)")
     p.add_argument("--mono", action="store_true",
                    help="with --relit: the mono camera (the stacks' luminance through an IMX250MZR mosaic) "
