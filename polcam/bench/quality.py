@@ -29,6 +29,7 @@ from skimage.metrics import structural_similarity
 
 from polcam.io.atomic import atomic_path, atomic_write
 from polcam.separation import METHODS, method_spec, separate
+from polcam.synth.analytic import render_analytic
 from polcam.synth.family import render_family, split_seeds
 from polcam.synth.render import render
 from polcam.synth.scenes import SCENES, STRESS, scene
@@ -208,11 +209,18 @@ def _score_scene(name: str, stack: np.ndarray, truth: np.ndarray, mask: np.ndarr
     return scores
 
 
+#: The scene families of :func:`run_family`: the randomized family (``--set random``), on which
+#: choices are made, and the analytic family (``--set analytic``), from a second renderer, used for
+#: no choice.
+FAMILIES = ("random", "analytic")
+
+
 def run_family(split: str = "validation", n: int = 40, *, seed: int | None = None, size: int = 128,
                methods: Sequence[str] | None = None, mono: bool = False,
                options: dict[str, dict[str, Any]] | None = None, progress: bool = True,
+               family: str = "random",
                ) -> tuple[list[Score], dict[str, dict[str, float]], list[int], int | None]:
-    """Score the methods on a split of the randomized scene family (:mod:`polcam.synth.family`).
+    """Score the methods on a split of a scene family (:mod:`polcam.synth.family`, :mod:`polcam.synth.analytic`).
 
     Parameters
     ----------
@@ -231,6 +239,9 @@ def run_family(split: str = "validation", n: int = 40, *, seed: int | None = Non
         Score the IMX250MZR camera's stack against the luminance truth (``diffuse_mono``).
     options
         Per-method keyword options.
+    family
+        ``random`` (:func:`polcam.synth.family.render_family`) or ``analytic``
+        (:func:`polcam.synth.analytic.render_analytic`, the same seeds and camera, another renderer).
 
     Returns
     -------
@@ -242,14 +253,17 @@ def run_family(split: str = "validation", n: int = 40, *, seed: int | None = Non
     seeds : list of int
     master : int or None
     """
+    if family not in FAMILIES:
+        raise ValueError(f"scene family {family!r}: expected one of {', '.join(FAMILIES)}")
     seeds, master = split_seeds(split, n, seed=seed)
     meths = list(methods or [m for m in METHODS if not mono or method_spec(m).mono])
     for m in meths:
         method_spec(m)  # an unknown name is refused before any work
     scores: list[Score] = []
     stats: dict[str, dict[str, float]] = {}
+    rend = render_family if family == "random" else render_analytic
     for sd in seeds:
-        sc = render_family(sd, size=size)
+        sc = rend(sd, size=size)
         stack, truth = (sc.mono_stack, sc.diffuse_mono) if mono else (sc.stack, sc.diffuse)
         stats[sc.name] = {
             "specular_ratio": float(np.clip(sc.ideal.mean(0), 0, 1).sum() / max(float(sc.diffuse.sum()), 1e-12)

@@ -77,7 +77,7 @@ from polcam.synth.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo
 from polcam.synth.render import SceneSpec, Texture, render
 
 __all__ = ["SPLITS", "TEST_SEED_MIN", "TRAINING_SEED_MIN", "training_seeds", "SHAPES", "PHOTOS", "MaterialTexture", "FamilyScene",
-           "draw", "render_family", "split_seeds", "scene_name", "seed_of"]
+           "draw", "render_family", "split_seeds", "scene_name", "seed_of", "camera", "cell_means"]
 
 #: The splits of :func:`split_seeds`.
 SPLITS = ("validation", "test")
@@ -422,9 +422,15 @@ def _specs(p: dict[str, Any]) -> list[SceneSpec]:
     return out
 
 
-def _camera(raw_clean: np.ndarray, layout: str, rng: np.random.Generator, p: dict[str, Any]) -> np.ndarray:
-    """Noise, clipping and quantisation of a raw mosaic, then the default demosaicing at the
-    polarizer-cell resolution (``polcam process``'s default), clipped to [0, 1]."""
+def camera(raw_clean: np.ndarray, layout: str, rng: np.random.Generator, p: dict[str, Any]) -> np.ndarray:
+    """The family's camera: a noise-free raw mosaic as the sensor and polcam give it.
+
+    Shot noise (``p["full_well"]`` electrons at 1), read noise (``p["read_noise"]`` electrons),
+    clipping at 1 and quantisation to ``p["bit_depth"]`` bits of ``raw_clean`` ((H, W) >= 0, 1 the
+    white level, in ``layout``), drawn from ``rng``; then the default demosaicing at the
+    polarizer-cell resolution (``polcam process``'s default), clipped to [0, 1]: (4, H/2, W/2[, 3])
+    float32.
+    """
     fw = p["full_well"]
     e = rng.poisson(np.maximum(raw_clean, 0.0) * fw).astype(np.float64)
     e += rng.normal(0.0, p["read_noise"], size=e.shape)
@@ -434,8 +440,8 @@ def _camera(raw_clean: np.ndarray, layout: str, rng: np.random.Generator, p: dic
                    ).astype(np.float32)
 
 
-def _cells(a: np.ndarray, axes: tuple[int, int]) -> np.ndarray:
-    """Mean over 2 x 2 blocks along two axes (sides halved)."""
+def cell_means(a: np.ndarray, axes: tuple[int, int]) -> np.ndarray:
+    """Mean over 2 x 2 blocks along two axes of ``a`` (those sides halved; they must be even)."""
     y, x = axes
     shp = list(a.shape)
     shp[y:y + 1] = [shp[y] // 2, 2]
@@ -487,16 +493,16 @@ def render_family(seed: int, *, size: int = 128) -> FamilyScene:
     # take it from a matte copy lit by the ambient term alone (every object pixel lit)
     matte = render(dataclasses.replace(_specs(p)[0], ks=0.0, light_intensity=0.0, ambient=0.5 / _HEADROOM),
                    size=n, seed=0)
-    dpol = dolp(_cells(matte.stack.astype(np.float64).mean(axis=-1), (1, 2))).astype(np.float32)
+    dpol = dolp(cell_means(matte.stack.astype(np.float64).mean(axis=-1), (1, 2))).astype(np.float32)
     rng = np.random.default_rng(p["noise_seed"])
-    stack = _camera(mosaic_stack(ideal, layout="imx250myr"), "imx250myr", rng, p)
-    mono = _camera(mosaic_stack(ideal.mean(axis=-1), layout="imx250mzr"), "imx250mzr", rng, p)
-    truth = _cells(np.clip(diffuse, 0.0, 1.0), (0, 1)).astype(np.float32)
-    clipped = _cells((ideal >= 1.0).any(axis=(0, 3)).astype(np.float64), (0, 1)) > 0
-    obj = _cells(mask.astype(np.float64), (0, 1)) >= 0.5
+    stack = camera(mosaic_stack(ideal, layout="imx250myr"), "imx250myr", rng, p)
+    mono = camera(mosaic_stack(ideal.mean(axis=-1), layout="imx250mzr"), "imx250mzr", rng, p)
+    truth = cell_means(np.clip(diffuse, 0.0, 1.0), (0, 1)).astype(np.float32)
+    clipped = cell_means((ideal >= 1.0).any(axis=(0, 3)).astype(np.float64), (0, 1)) > 0
+    obj = cell_means(mask.astype(np.float64), (0, 1)) >= 0.5
     return FamilyScene(
         name=scene_name(seed), seed=int(seed), stack=stack, mono_stack=mono, diffuse=truth,
-        diffuse_mono=truth.mean(axis=-1), ideal=_cells(ideal, (1, 2)).astype(np.float32), mask=obj,
+        diffuse_mono=truth.mean(axis=-1), ideal=cell_means(ideal, (1, 2)).astype(np.float32), mask=obj,
         clipped=clipped, dolp_diffuse=np.where(obj, dpol, 0.0).astype(np.float32), params=p,
     )
 

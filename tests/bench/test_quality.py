@@ -120,3 +120,21 @@ def test_family_run_scores_the_camera_stack_against_truth(capsys, tmp_path):
     assert "master seed 7" in out and f"rand-{split_seeds('test', 1, seed=7)[0][0]}" in out
     assert main(["bench", "quality", "--set", "random", "--split", "validation", "--seed", "3", "--n", "1",
                  "--out", str(tmp_path)]) == 2
+
+
+def test_the_analytic_family_runs_through_the_same_bench(capsys, tmp_path):
+    from polcam.bench.quality import run_family
+    from polcam.polarimetry import imin
+    from polcam.synth.analytic import render_analytic
+
+    scores, _, seeds, _ = run_family("validation", 2, size=32, methods=["imin"], progress=False, family="analytic")
+    assert seeds == [0, 1] and [s.scene for s in scores] == ["ana-0", "ana-1"]
+    sc = render_analytic(1, size=32)
+    ref = psnr(np.clip(imin(sc.stack.astype(np.float64)), 0, sc.stack.mean(0)), sc.diffuse, sc.mask)
+    assert scores[1].psnr_mask == pytest.approx(ref, abs=0.05)
+    with pytest.raises(ValueError, match="scene family 'mesh'"):
+        run_family("validation", 1, size=32, methods=["imin"], progress=False, family="mesh")
+    assert main(["bench", "quality", "--set", "analytic", "--n", "1", "--size", "32", "--methods", "imin",
+                 "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "scenes: ana-0" in out and "| imin |" in out

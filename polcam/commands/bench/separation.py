@@ -19,6 +19,7 @@ from polcam.errors import FrameReadError, MethodError, PolcamError
 from polcam.io.atomic import atomic_write
 from polcam.separation.polarized_residual import LEARNED_MONO_WEIGHTS as RESIDUAL_MONO_WEIGHTS
 from polcam.separation.polarized_residual import LEARNED_WEIGHTS as RESIDUAL_WEIGHTS
+from polcam.synth.analytic import scene_name as analytic_scene_name
 from polcam.synth.family import scene_name, split_seeds
 
 __all__ = ["add_parsers"]
@@ -81,25 +82,27 @@ def _add_quality(bsub: Any) -> None:
                                      "and object mask; CSV, Markdown, plot), beside the paper's tables.")
     bq.add_argument("--methods", nargs="+", help="only these methods")
     bq.add_argument("--scenes", nargs="+", help="only these scenes (default: those of --set)")
-    bq.add_argument("--set", choices=("paper", "stress", "all", "random"), default="paper",
-                    help="scene set: the paper's, polcam's stress scenes, both, or the randomized family "
-                         "(polcam.synth.family; default paper)")
+    bq.add_argument("--set", choices=("paper", "stress", "all", "random", "analytic"), default="paper",
+                    help="scene set: the paper's, polcam's stress scenes, both, the randomized family "
+                         "(polcam.synth.family), or the analytic family from a second renderer, used for no "
+                         "choice (polcam.synth.analytic; default paper)")
     bq.add_argument("--split", choices=("validation", "test"), default="validation",
-                    help="with --set random: validation (fixed seeds, for choices) or test (fresh seeds at "
-                         "every run, printed; default validation)")
-    bq.add_argument("--n", type=int, default=40, help="with --set random: number of scenes (default 40)")
+                    help="with --set random or analytic: validation (fixed seeds, for choices) or test (fresh "
+                         "seeds at every run, printed; default validation)")
+    bq.add_argument("--n", type=int, default=40, help="with --set random or analytic: number of scenes (default 40)")
     bq.add_argument("--mono", action="store_true",
                     help="score the scenes' luminance with the methods that take mono stacks")
     bq.add_argument("--size", type=int, default=128, help="scene side in pixels (default 128)")
-    bq.add_argument("--seed", type=int, help="noise seed of the named scenes (default 0); with --set random "
-                                             "--split test: the master seed of the scene seeds (default fresh)")
+    bq.add_argument("--seed", type=int, help="noise seed of the named scenes (default 0); with --set random or "
+                                             "analytic --split test: the master seed of the scene seeds (default "
+                                             "fresh)")
     bq.add_argument("--out", type=Path, help="output folder (default bench-output/quality)")
     bq.set_defaults(bench_run=run_quality)
 
 
 def run_quality(args: argparse.Namespace) -> int:
     """Run a parsed ``polcam bench quality``: the table on stdout, CSV, Markdown and a plot in --out."""
-    if args.set == "random":
+    if args.set in quality.FAMILIES:
         return _quality_family(args)
     scenes = args.scenes or quality.scene_set(args.set)
     scores, stats = quality.run(scenes=scenes, methods=args.methods, size=args.size,
@@ -111,7 +114,7 @@ def run_quality(args: argparse.Namespace) -> int:
 
 
 def _quality_family(args: argparse.Namespace) -> int:
-    """``polcam bench quality --set random``: a split of the randomized scene family."""
+    """``polcam bench quality --set random`` (or ``analytic``): a split of a scene family."""
     try:
         seeds, master = split_seeds(args.split, args.n, seed=args.seed)
     except PolcamError as exc:
@@ -119,15 +122,17 @@ def _quality_family(args: argparse.Namespace) -> int:
         return 2
     if master is not None:
         print(f"test split: master seed {master} (reproduce this run with --split test --seed {master})")
-    print("scenes: " + " ".join(scene_name(s) for s in seeds), flush=True)
+    name = scene_name if args.set == "random" else analytic_scene_name
+    print("scenes: " + " ".join(name(s) for s in seeds), flush=True)
     try:
         scores, stats, _, _ = quality.run_family(args.split, args.n, seed=master, size=args.size,
-                                                 methods=args.methods, mono=args.mono)
+                                                 methods=args.methods, mono=args.mono, family=args.set)
     except PolcamError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(quality.family_summary(scores))
-    out = args.out or Path("bench-output") / f"quality-{args.split}{'-mono' if args.mono else ''}"
+    kind = "" if args.set == "random" else "analytic-"
+    out = args.out or Path("bench-output") / f"quality-{kind}{args.split}{'-mono' if args.mono else ''}"
     for f in quality.write_outputs(scores, stats, out):
         print(f"wrote {f}")
     return 0
