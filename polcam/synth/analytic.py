@@ -10,16 +10,19 @@ used for no choice (``polcam bench quality --set analytic``):
   through their signed distance functions (no mesh, no rasterizer), each turned at random;
 * **materials**: 1 to 3 per object, split by random planes through it (patches with sharp
   borders); each achromatic (grey to white), pale (a faint tint) or coloured, uniform;
-* **diffuse**: Lambertian, with the light's transmission into the surface and the emitted light's
+* **diffuse**: Lambertian (``albedo / pi`` of the irradiance), with the light's transmission into the surface and the emitted light's
   out of it weighted by Fresnel's ``1 - F`` (so grazing light and grazing views are dimmer than
   Lambert's cosine alone), polarized along the normal's azimuth by the transmission degree at the
   emission angle (Atkinson & Hancock 2006);
-* **specular**: none on 15 % of scenes (matte), else a Trowbridge-Reitz (GGX) microfacet lobe of
-  roughness ``alpha`` log-uniform in [0.04, 0.5] with Smith's masking and Fresnel's reflectance
-  at the angle between view and half-vector (so highlights seen at large angles from the light
-  are brighter), scaled so that a lobe at normal incidence peaks at ``peak`` times the light
-  (log-uniform in [0.1, 3]); polarized by Fresnel's ``(Rs - Rp) / (Rs + Rp)`` at that angle,
-  perpendicular to the plane of view and half-vector; refractive index uniform in [1.3, 1.9];
+* **specular**: none on 15 % of scenes (matte), else a Trowbridge-Reitz (GGX) microfacet
+  reflection of roughness ``alpha`` log-uniform in [0.04, 0.5], ``L_s = ks E D G F / (4 n.v)``
+  with Smith's masking ``G`` and Fresnel's reflectance ``F`` at the angle between view and
+  half-vector, energy-conserving as a real interface is (a rough lobe is broad and faint, a smooth
+  one small and bright: at ``alpha`` 0.1 and normal incidence it peaks at about twice a white
+  Lambertian surface's radiance, at 0.5 at a tenth), ``ks`` log-uniform in [0.5, 2] (a coat that
+  reflects more or less than a bare interface); polarized by Fresnel's ``(Rs - Rp) / (Rs + Rp)``
+  at that angle, perpendicular to the plane of view and half-vector; refractive index uniform in
+  [1.3, 1.9];
 * **light**: one or two directional lights (not the first family's point lights), at 2-110
   degrees from the camera's axis, white (45 %), tinted (35 %) or two of different colours (20 %),
   plus an unpolarized ambient term;
@@ -145,7 +148,7 @@ def draw(seed: int) -> dict[str, Any]:
     -------
     dict
         ``shape``, ``shape_params``, ``rotation`` (3 x 3), ``materials`` (RGB albedos, 1-3),
-        ``planes`` (the material split), ``ks`` (the specular ``peak``; 0 when matte), ``alpha``,
+        ``planes`` (the material split), ``ks`` (the specular scale; 0 when matte), ``alpha``,
         ``refractive_index``, ``light``, ``lights`` (``direction``, ``color``, ``intensity``),
         ``ambient``, ``exposure`` (the diffuse level), ``background``, ``background_rgb``,
         ``full_well``, ``read_noise``, ``bit_depth``, ``noise_seed``.
@@ -176,7 +179,7 @@ def draw(seed: int) -> dict[str, Any]:
     materials = [_colour(rng, kd) for kd in kinds]
     planes = [{"normal": [float(x) for x in rng.normal(size=3)], "offset": float(rng.uniform(-0.25, 0.25))}
               for _ in range(k - 1)]
-    ks = 0.0 if rng.random() < 0.15 else _loguniform(rng, 0.1, 3.0)
+    ks = 0.0 if rng.random() < 0.15 else _loguniform(rng, 0.5, 2.0)
     alpha = _loguniform(rng, 0.04, 0.5)
     light = ("white", "tinted", "two")[int(rng.choice(3, p=(0.45, 0.35, 0.2)))]
 
@@ -306,17 +309,14 @@ def _shade(p: dict[str, Any], pts: np.ndarray, nrm: np.ndarray, view: np.ndarray
 
         cd = np.clip((view * h).sum(-1), 0.0, 1.0)
         rs, rp = reflectances(np.arccos(cd), n_r)
-        r0 = reflectances(np.zeros(1), n_r)[0][0]
-        # D G F / (4 n.v) scaled so that its peak at normal incidence (D = 1 / (pi a2), G = 1, F = r0,
-        # n.v = 1) is ks
-        mag = p["ks"] * np.pi * a2 * dist * g1(ndl) * g1(ndv) * (0.5 * (rs + rp) / r0) / ndv
+        mag = p["ks"] * dist * g1(ndl) * g1(ndv) * 0.5 * (rs + rp) / (4.0 * ndv)
         mag = np.where(lit, mag, 0.0)
         rho = np.divide(rs - rp, rs + rp, out=np.zeros_like(rs), where=(rs + rp) > 0)
         phi = _angle(np.cross(view, h))
         spec += mag[:, None] * e
         s_q += (mag * rho * np.cos(2 * phi))[:, None] * e
         s_u += (mag * rho * np.sin(2 * phi))[:, None] * e
-    dif = alb * irr
+    dif = alb * irr / np.pi
     rho_d = transmission_dolp(np.arccos(ndv), n_r)
     phi_d = _angle(nrm - ndv[:, None] * view)
     d_q = (rho_d * np.cos(2 * phi_d))[:, None] * dif
