@@ -184,8 +184,12 @@ def brightest_composition(given: np.ndarray, relit_true: np.ndarray, *, clip_lev
     >>> brightest_composition(wall, wall)["top_clipped"]
     1.0
     """
-    top, clipped, unpol, rising = _brightest_masks(given, relit_true, clip_level=clip_level, bright=bright,
-                                                   window=window, unpolarized=unpolarized)
+    return _composition(*_brightest_masks(given, relit_true, clip_level=clip_level, bright=bright, window=window,
+                                          unpolarized=unpolarized))
+
+
+def _composition(top: np.ndarray, clipped: np.ndarray, unpol: np.ndarray, rising: np.ndarray) -> dict[str, float]:
+    """:func:`brightest_composition`'s shares from its masks."""
     n = max(int(top.sum()), 1)
 
     def share(m: np.ndarray) -> float:
@@ -334,9 +338,9 @@ def run(data: Path, *, methods: Sequence[str] | None = None, scenes: Sequence[st
                 given = _mono_camera(true[..., 0])[..., None]
             else:
                 given = camera_stack(true)
-            top = brightest_composition(given, true)
-            b_top, b_clip, b_unpol, b_rise = _brightest_masks(given, true)
-            signs = b_top & b_rise & ~b_clip & ~b_unpol
+            masks = _brightest_masks(given, true)
+            top = _composition(*masks)
+            signs = masks[0] & masks[3] & ~masks[1] & ~masks[2]      # brightest, rising, unclipped, polarized
             for m in meths:
                 out.append(replace(_score(name, v, m, given, true, matte, mono=mono, options=options.get(m, {}),
                                           highlight_like=signs), **top))
