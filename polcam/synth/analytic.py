@@ -10,17 +10,17 @@ used for no choice (``polcam bench quality --set analytic``):
   through their signed distance functions (no mesh, no rasterizer), each turned at random;
 * **materials**: 1 to 3 per object, split by random planes through it (patches with sharp
   borders); each achromatic (grey to white), pale (a faint tint) or coloured, uniform;
-* **diffuse**: Lambertian (``albedo / pi`` of the irradiance), with the light's transmission into the surface and the emitted light's
-  out of it weighted by Fresnel's ``1 - F`` (so grazing light and grazing views are dimmer than
-  Lambert's cosine alone), polarized along the normal's azimuth by the transmission degree at the
-  emission angle (Atkinson & Hancock 2006);
+* **diffuse**: Lambertian (``albedo / pi`` of the irradiance), with the light's transmission into
+  the surface and the emitted light's out of it weighted by Fresnel's ``1 - F`` (so grazing light
+  and grazing views are dimmer than Lambert's cosine alone), polarized along the normal's azimuth
+  by the transmission degree at the emission angle (Atkinson & Hancock 2006);
 * **specular**: none on 15 % of scenes (matte), else a Trowbridge-Reitz (GGX) microfacet
   reflection of roughness ``alpha`` log-uniform in [0.04, 0.5], ``L_s = ks E D G F / (4 n.v)``
   with Smith's masking ``G`` and Fresnel's reflectance ``F`` at the angle between view and
   half-vector, energy-conserving as a real interface is (a rough lobe is broad and faint, a smooth
-  one small and bright: at ``alpha`` 0.1 and normal incidence it peaks at about twice a white
-  Lambertian surface's radiance, at 0.5 at a tenth), ``ks`` log-uniform in [0.5, 2] (a coat that
-  reflects more or less than a bare interface); polarized by Fresnel's ``(Rs - Rp) / (Rs + Rp)``
+  one small and bright: with ``ks`` 1 and index 1.5, at normal incidence, it peaks at a white
+  Lambertian surface's radiance for ``alpha`` 0.1, at a 25th of it for 0.5, at 6 times it for
+  0.04), ``ks`` log-uniform in [0.5, 2] (a coat that reflects more or less than a bare interface); polarized by Fresnel's ``(Rs - Rp) / (Rs + Rp)``
   at that angle, perpendicular to the plane of view and half-vector; refractive index uniform in
   [1.3, 1.9];
 * **light**: one or two directional lights (not the first family's point lights), at 2-110
@@ -290,6 +290,11 @@ def _shade(p: dict[str, Any], pts: np.ndarray, nrm: np.ndarray, view: np.ndarray
     s_q = np.zeros(alb.shape)
     s_u = np.zeros(alb.shape)
     a2 = p["alpha"] ** 2
+
+    def g1(c: np.ndarray) -> np.ndarray:                     # Smith's masking of one direction (GGX)
+        c = np.clip(c, 1e-4, 1.0)
+        return 2 * c / (c + np.sqrt(a2 + (1 - a2) * c * c))
+
     for lt in p["lights"]:
         ldir = np.asarray(lt["direction"], np.float64)
         e = lt["intensity"] * np.asarray(lt["color"], np.float64)
@@ -302,11 +307,6 @@ def _shade(p: dict[str, Any], pts: np.ndarray, nrm: np.ndarray, view: np.ndarray
         h /= np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
         ndh = np.clip((nrm * h).sum(-1), 0.0, 1.0)
         dist = a2 / (np.pi * (ndh * ndh * (a2 - 1.0) + 1.0) ** 2)
-
-        def g1(c: np.ndarray) -> np.ndarray:
-            c = np.clip(c, 1e-4, 1.0)
-            return 2 * c / (c + np.sqrt(a2 + (1 - a2) * c * c))
-
         cd = np.clip((view * h).sum(-1), 0.0, 1.0)
         rs, rp = reflectances(np.arccos(cd), n_r)
         mag = p["ks"] * dist * g1(ndl) * g1(ndv) * 0.5 * (rs + rp) / (4.0 * ndv)
