@@ -87,8 +87,8 @@ def _add_quality(bsub: Any) -> None:
                          "(polcam.synth.family), or the analytic family from a second renderer, used for no "
                          "choice (polcam.synth.analytic; default paper)")
     bq.add_argument("--split", choices=("validation", "test"), default="validation",
-                    help="with --set random or analytic: validation (fixed seeds, for choices) or test (fresh "
-                         "seeds at every run, printed; default validation)")
+                    help="with --set random or analytic: validation (fixed seeds; of the random family, for "
+                         "choices) or test (fresh seeds at every run, printed; default validation)")
     bq.add_argument("--n", type=int, default=40, help="with --set random or analytic: number of scenes (default 40)")
     bq.add_argument("--mono", action="store_true",
                     help="score the scenes' luminance with the methods that take mono stacks")
