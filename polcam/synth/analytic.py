@@ -54,7 +54,7 @@ import numpy as np
 
 from polcam.demosaicing import mosaic_stack
 from polcam.errors import PolcamError
-from polcam.synth.family import FamilyScene, cell_means
+from polcam.synth.family import FamilyScene, cell_means, hue, loguniform
 from polcam.synth.family import camera as camera_of  # the same camera as the first family's
 
 __all__ = ["SHAPES", "draw", "render_analytic", "reflectances", "transmission_dolp", "scene_name"]
@@ -112,17 +112,13 @@ def transmission_dolp(theta: np.ndarray, n: float) -> np.ndarray:
     return num / den
 
 
-def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
-    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-
-
 def _colour(rng: np.random.Generator, kind: str) -> tuple[float, float, float]:
     if kind == "achromatic":
         v = float(rng.uniform(0.15, 0.9))
         return (v, v, v)
     sat = float(rng.uniform(0.04, 0.2)) if kind == "pale" else float(rng.uniform(0.35, 0.9))
     val = float(rng.uniform(0.5, 0.9)) if kind == "pale" else float(rng.uniform(0.3, 0.85))
-    return tuple(float(c) for c in colorsys.hsv_to_rgb(float(rng.uniform()), sat, val))  # type: ignore[return-value]
+    return hue(rng, sat, val)
 
 
 def _direction(rng: np.random.Generator, lo_deg: float, hi_deg: float) -> tuple[float, float, float]:
@@ -179,8 +175,8 @@ def draw(seed: int) -> dict[str, Any]:
     materials = [_colour(rng, kd) for kd in kinds]
     planes = [{"normal": [float(x) for x in rng.normal(size=3)], "offset": float(rng.uniform(-0.25, 0.25))}
               for _ in range(k - 1)]
-    ks = 0.0 if rng.random() < 0.15 else _loguniform(rng, 0.5, 2.0)
-    alpha = _loguniform(rng, 0.04, 0.5)
+    ks = 0.0 if rng.random() < 0.15 else loguniform(rng, 0.5, 2.0)
+    alpha = loguniform(rng, 0.04, 0.5)
     light = ("white", "tinted", "two")[int(rng.choice(3, p=(0.45, 0.35, 0.2)))]
 
     def tint() -> tuple[float, float, float]:
@@ -201,9 +197,9 @@ def draw(seed: int) -> dict[str, Any]:
         "seed": int(seed), "shape": shape, "shape_params": sp, "rotation": rot, "materials": materials,
         "material_kinds": kinds, "planes": planes, "ks": ks, "alpha": alpha,
         "refractive_index": float(rng.uniform(1.3, 1.9)), "light": light, "lights": lights,
-        "ambient": float(rng.uniform(0.0, 0.12)), "exposure": _loguniform(rng, 0.2, 1.3),
+        "ambient": float(rng.uniform(0.0, 0.12)), "exposure": loguniform(rng, 0.2, 1.3),
         "background": background, "background_rgb": bg,
-        "full_well": _loguniform(rng, 4000.0, 30000.0), "read_noise": float(rng.uniform(2.0, 10.0)),
+        "full_well": loguniform(rng, 4000.0, 30000.0), "read_noise": float(rng.uniform(2.0, 10.0)),
         "bit_depth": 12, "noise_seed": int(rng.integers(2**31)),
     }
 

@@ -77,7 +77,8 @@ from polcam.synth.photos import TRAINING_PHOTOS, VALIDATION_PHOTOS, load_photo
 from polcam.synth.render import SceneSpec, Texture, render
 
 __all__ = ["SPLITS", "TEST_SEED_MIN", "TRAINING_SEED_MIN", "training_seeds", "SHAPES", "PHOTOS", "MaterialTexture", "FamilyScene",
-           "draw", "render_family", "split_seeds", "scene_name", "seed_of", "camera", "cell_means"]
+           "draw", "render_family", "split_seeds", "scene_name", "seed_of", "camera", "cell_means",
+           "loguniform", "hue"]
 
 #: The splits of :func:`split_seeds`.
 SPLITS = ("validation", "test")
@@ -305,12 +306,13 @@ def training_seeds(n: int, *, start: int = 0) -> list[int]:
                           f"and start + n <= {room}")
     return [TRAINING_SEED_MIN + int(start) + i for i in range(int(n))]
 
-def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+def loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    """A draw from ``rng`` log-uniform in [lo, hi] (lo > 0)."""
     return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
 
-def _hue(rng: np.random.Generator, saturation: float, value: float) -> _RGB:
-    """An RGB colour of random hue at this HSV saturation and value."""
+def hue(rng: np.random.Generator, saturation: float, value: float) -> _RGB:
+    """An RGB colour of random hue (drawn from ``rng``) at this HSV saturation and value."""
     import colorsys
 
     r, g, b = colorsys.hsv_to_rgb(float(rng.uniform()), saturation, value)
@@ -324,10 +326,10 @@ def _material(rng: np.random.Generator) -> dict[str, Any]:
         return {"kind": "uniform", "material": kind, "rgb": (v, v, v)}
     if kind == "pale":
         return {"kind": "uniform", "material": kind,
-                "rgb": _hue(rng, float(rng.uniform(0.04, 0.2)), float(rng.uniform(0.5, 0.9)))}
+                "rgb": hue(rng, float(rng.uniform(0.04, 0.2)), float(rng.uniform(0.5, 0.9)))}
     if kind == "colour":
         return {"kind": "uniform", "material": kind,
-                "rgb": _hue(rng, float(rng.uniform(0.4, 0.9)), float(rng.uniform(0.3, 0.85)))}
+                "rgb": hue(rng, float(rng.uniform(0.4, 0.9)), float(rng.uniform(0.3, 0.85)))}
     name = PHOTOS[int(rng.integers(len(PHOTOS)))]
     h, w = _photo(name).shape[:2]
     side = int(rng.uniform(0.3, 1.0) * min(h, w))
@@ -372,34 +374,34 @@ def draw(seed: int) -> dict[str, Any]:
     k = int(rng.integers(1, 5))
     centers = [tuple(float(x) for x in rng.uniform(-0.45, 0.45, 3)) for _ in range(k)]
     materials = [_material(rng) for _ in range(k)]
-    ks = 0.0 if rng.random() < 0.15 else _loguniform(rng, 0.1, 2.0)
-    shininess = _loguniform(rng, 3.0, 100.0)
+    ks = 0.0 if rng.random() < 0.15 else loguniform(rng, 0.1, 2.0)
+    shininess = loguniform(rng, 3.0, 100.0)
     n_r = float(rng.uniform(1.3, 1.9))
-    exposure = _loguniform(rng, 0.25, 3.0)
+    exposure = loguniform(rng, 0.25, 3.0)
     light = ("white", "tinted", "mixed")[int(rng.choice(3, p=(0.4, 0.4, 0.2)))]
     if light == "white":
         lights = [{"position": _light_direction(rng), "color": (1.0, 1.0, 1.0), "intensity": 1.0}]
     elif light == "tinted":
         lights = [{"position": _light_direction(rng), "intensity": 1.0,
-                   "color": _hue(rng, float(rng.uniform(0.1, 0.5)), 1.0)}]
+                   "color": hue(rng, float(rng.uniform(0.1, 0.5)), 1.0)}]
     else:
         share = float(rng.uniform(0.3, 0.7))
         lights = [{"position": _light_direction(rng), "intensity": share,
-                   "color": _hue(rng, float(rng.uniform(0.1, 0.5)), 1.0)},
+                   "color": hue(rng, float(rng.uniform(0.1, 0.5)), 1.0)},
                   {"position": _light_direction(rng), "intensity": 1.0 - share,
-                   "color": _hue(rng, float(rng.uniform(0.1, 0.5)), 1.0)}]
+                   "color": hue(rng, float(rng.uniform(0.1, 0.5)), 1.0)}]
     ambient = float(rng.uniform(0.0, 0.1))
     if rng.random() < 0.5:
         background, bg_albedo = "black", (0.15, 0.15, 0.15)
     else:
         background = "plane"
-        bg_albedo = (_hue(rng, float(rng.uniform(0.0, 0.3)), float(rng.uniform(0.1, 0.6))))
+        bg_albedo = (hue(rng, float(rng.uniform(0.0, 0.3)), float(rng.uniform(0.1, 0.6))))
     return {
         "seed": int(seed), "shape": shape, "rotation": rotation, "view": dict(SHAPES[shape]),
         "centers": centers, "materials": materials, "ks": ks, "shininess": shininess,
         "refractive_index": n_r, "light": light, "lights": lights, "ambient": ambient,
         "exposure": exposure, "background": background, "background_albedo": bg_albedo,
-        "full_well": _loguniform(rng, 4000.0, 30000.0), "read_noise": float(rng.uniform(2.0, 10.0)),
+        "full_well": loguniform(rng, 4000.0, 30000.0), "read_noise": float(rng.uniform(2.0, 10.0)),
         "bit_depth": 12, "noise_seed": int(rng.integers(2**31)),
     }
 
