@@ -270,8 +270,9 @@ def _angle(e: np.ndarray) -> np.ndarray:
 
 
 def _shade(p: dict[str, Any], pts: np.ndarray, nrm: np.ndarray, view: np.ndarray, rot: np.ndarray
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """The four polarizer images (4, N, 3) and the diffuse radiance (N, 3) at the hit points (before exposure)."""
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The four polarizer images (4, N, 3), the diffuse radiance (N, 3) at the hit points (before
+    exposure) and the diffuse light's degree of polarization (N,)."""
     n_r = p["refractive_index"]
     alb = np.asarray(p["materials"], np.float64)[_material_index(pts @ rot, p["planes"], len(p["materials"]))]
     ndv = np.clip((nrm * view).sum(-1), 1e-4, 1.0)
@@ -319,7 +320,7 @@ def _shade(p: dict[str, Any], pts: np.ndarray, nrm: np.ndarray, view: np.ndarray
     d_u = (rho_d * np.sin(2 * phi_d))[:, None] * dif
     c2, s2 = np.cos(2 * _ANGLES)[:, None, None], np.sin(2 * _ANGLES)[:, None, None]
     stack = (dif + spec)[None] + c2 * (d_q + s_q)[None] + s2 * (d_u + s_u)[None]
-    return stack, dif
+    return stack, dif, rho_d
 
 
 def render_analytic(seed: int, *, size: int = 128) -> FamilyScene:
@@ -366,7 +367,7 @@ def _render(p: dict[str, Any], size: int) -> FamilyScene:
     if not hit.any():                                        # pragma: no cover - every shape fills the frame's centre
         raise AssertionError(f"scene {seed}: the object is not seen")
     nrm = _normals(pts[hit], rot, p["shape"], p["shape_params"])
-    stack, dif = _shade(p, pts[hit], nrm, -dirs[hit], rot)
+    stack, dif, rho_hit = _shade(p, pts[hit], nrm, -dirs[hit], rot)
     level = float(np.quantile(dif.max(axis=-1), 0.995))
     # the background's radiance relative to the object's brightest diffuse
     ideal = np.zeros((4, n * n, 3)) + level * np.asarray(p["background_rgb"], np.float64)
@@ -377,9 +378,9 @@ def _render(p: dict[str, Any], size: int) -> FamilyScene:
     ideal = (ideal * gain).reshape(4, n, n, 3)
     diffuse = (diffuse * gain).reshape(n, n, 3)
     mask = hit.reshape(n, n)
-    ndv = np.zeros(n * n)
-    ndv[hit] = np.clip((nrm * -dirs[hit]).sum(-1), 0.0, 1.0)
-    rho = np.where(hit, transmission_dolp(np.arccos(ndv), p["refractive_index"]), 0.0).reshape(n, n)
+    rho = np.zeros(n * n)
+    rho[hit] = rho_hit
+    rho = rho.reshape(n, n)
     rng = np.random.default_rng(p["noise_seed"])
     cam = {"full_well": p["full_well"], "read_noise": p["read_noise"], "bit_depth": p["bit_depth"]}
     stack_c = camera_of(mosaic_stack(ideal, layout="imx250myr"), "imx250myr", rng, cam)
