@@ -64,7 +64,7 @@ from polcam.polarimetry import dolp, imin
 from polcam.separation import METHODS, method_spec, separate
 
 __all__ = ["RealScore", "find_scenes", "load_stack", "prepare", "relight", "camera_stack", "achromatic_mask",
-           "metrics", "run", "format_table", "write_outputs", "default_data"]
+           "brightest", "metrics", "run", "format_table", "write_outputs", "default_data"]
 
 #: Threshold of the Imin checks (one 8-bit step is 1/255).
 OVER_IMIN = 3.0 / 255.0
@@ -201,6 +201,13 @@ def achromatic_mask(true_stack: np.ndarray) -> np.ndarray:
     return (dolp(true_stack.mean(axis=-1)) < 0.03) & (sat < 0.12) & (tmean.mean(-1) > 0.08)
 
 
+def brightest(given: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the brightest 1 % of pixels of ``given`` ((4, H, W, C)) by their mean intensity,
+    the pixels ``top_removed`` is taken over."""
+    lum = np.asarray(given).mean(axis=(0, 3))
+    return lum >= np.quantile(lum, 0.99)
+
+
 def metrics(diffuse: np.ndarray, specular: np.ndarray, given: np.ndarray,
             true_stack: np.ndarray, *, achromatic: np.ndarray | None = None) -> dict[str, float]:
     """The physics checks of one separation (see the module docstring).
@@ -237,8 +244,7 @@ def metrics(diffuse: np.ndarray, specular: np.ndarray, given: np.ndarray,
     else:
         spread = 0.0
     inp = given.mean(axis=0)
-    lum = inp.mean(axis=-1)
-    top = lum >= np.quantile(lum, 0.99)
+    top = brightest(given)
     top_removed = float(s[top].sum() / max(inp[top].sum(), 1e-12))
     ach = achromatic_mask(true_stack) if achromatic is None else np.asarray(achromatic, bool)
     kept = float(d[ach].sum() / inp[ach].sum()) if ach.any() and inp[ach].sum() > 0 else float("nan")

@@ -59,7 +59,16 @@ from typing import Any
 
 import numpy as np
 
-from polcam.bench.real import achromatic_mask, camera_stack, find_scenes, load_stack, metrics, prepare, relight
+from polcam.bench.real import (
+    achromatic_mask,
+    brightest,
+    camera_stack,
+    find_scenes,
+    load_stack,
+    metrics,
+    prepare,
+    relight,
+)
 from polcam.demosaicing import demosaic, mosaic_stack
 from polcam.errors import PolcamError
 from polcam.polarimetry import dolp
@@ -203,10 +212,8 @@ def _brightest_masks(given: np.ndarray, relit_true: np.ndarray, *, clip_level: f
                      bright: float = LOCAL_BRIGHT, window: int = LOCAL_WINDOW,
                      unpolarized: float = UNPOLARIZED_DOLP) -> tuple[np.ndarray, ...]:
     """(H, W) bool masks of :func:`brightest_composition`: the brightest 1 %, clipped, unpolarized, rising."""
-    g = np.asarray(given, np.float64)
     t = np.asarray(relit_true, np.float64)
-    lum = g.mean(axis=(0, 3))
-    top = lum >= np.quantile(lum, 0.99)
+    top = brightest(np.asarray(given, np.float64))
     clipped = (t >= clip_level).any(axis=(0, 3))
     unpol = dolp(t.mean(axis=-1)) < unpolarized
     rising = _locally_bright(t.mean(axis=(0, 3)), bright, window)
